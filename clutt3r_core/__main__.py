@@ -1,0 +1,3 @@
+from clutt3r_core.cli import main
+
+main()

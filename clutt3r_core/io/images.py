@@ -1,0 +1,125 @@
+"""Image file reading and writing with errors that name the file.
+
+OpenCV reads and writes PNGs here (fast, releases the GIL so views load in parallel
+threads). Every failure becomes a SceneFileError naming the path and the problem.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from clutt3r_core.errors import SceneFileError
+
+__all__ = ["read_rgb", "read_depth_mm", "read_mask", "read_label_png", "write_png", "atomic_write_bytes"]
+
+
+def _imread(path: Path, flags: int) -> np.ndarray:
+    if not path.is_file():
+        raise SceneFileError(path, "file not found")
+    data = np.fromfile(path, dtype=np.uint8)
+    if data.size == 0:
+        raise SceneFileError(path, "file is empty")
+    img = cv2.imdecode(data, flags)
+    if img is None:
+        raise SceneFileError(path, "not a readable image (corrupt or truncated PNG?)")
+    return img
+
+
+def read_rgb(path: str | Path, expect_hw: tuple[int, int] | None = None) -> np.ndarray:
+    """Read an 8-bit colour image as (H, W, 3) uint8 RGB."""
+    path = Path(path)
+    img = _imread(path, cv2.IMREAD_UNCHANGED)
+    if img.dtype != np.uint8:
+        raise SceneFileError(path, f"colour image must be 8-bit, got {img.dtype}")
+    if img.ndim == 2:
+        img = np.repeat(img[:, :, None], 3, axis=2)
+    elif img.shape[2] == 4:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGB)
+    else:
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    _check_hw(path, img, expect_hw, "image")
+    return img
+
+
+def read_depth_mm(path: str | Path, expect_hw: tuple[int, int] | None = None, scale: float = 0.001) -> np.ndarray:
+    """Read a 16-bit depth PNG and return (H, W) float32 metres, NaN for holes (value 0).
+
+    ``scale`` converts file units to metres (0.001 for millimetres).
+    """
+    path = Path(path)
+    img = _imread(path, cv2.IMREAD_UNCHANGED)
+    if img.dtype != np.uint16:
+        raise SceneFileError(path, f"depth PNG must be 16-bit (uint16 millimetres), got {img.dtype}")
+    if img.ndim != 2:
+        raise SceneFileError(path, f"depth PNG must be single-channel, got {img.shape[2]} channels")
+    _check_hw(path, img, expect_hw, "depth")
+    d = img.astype(np.float32) * np.float32(scale)
+    d[img == 0] = np.nan
+    return d
+
+
+def read_mask(path: str | Path, expect_hw: tuple[int, int] | None = None) -> np.ndarray:
+    """Read a binary mask PNG (0 / 255, or any non-zero) as (H, W) bool."""
+    path = Path(path)
+    img = _imread(path, cv2.IMREAD_UNCHANGED)
+    if img.ndim == 3:
+        img = img[:, :, :3].max(axis=2)
+    _check_hw(path, img, expect_hw, "mask")
+    return img > 0
+
+
+def read_label_png(path: str | Path, expect_hw: tuple[int, int] | None = None) -> np.ndarray:
+    """Read a single-channel 8- or 16-bit label PNG as (H, W) int32."""
+    path = Path(path)
+    img = _imread(path, cv2.IMREAD_UNCHANGED)
+    if img.ndim != 2:
+        raise SceneFileError(path, f"label PNG must be single-channel, got shape {img.shape}")
+    _check_hw(path, img, expect_hw, "label image")
+    return img.astype(np.int32)
+
+
+def _check_hw(path: Path, img: np.ndarray, expect_hw: tuple[int, int] | None, what: str) -> None:
+    if expect_hw is not None and tuple(img.shape[:2]) != tuple(expect_hw):
+        h, w = expect_hw
+        raise SceneFileError(path, f"{what} is {img.shape[1]}x{img.shape[0]} but {w}x{h} was expected")
+
+
+def atomic_write_bytes(path: str | Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically: temp file in the same folder, fsync, rename."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def write_png(path: str | Path, img: np.ndarray) -> None:
+    """Write uint8 RGB (H, W, 3), uint8 (H, W), bool (H, W) as 0/255, or uint16 (H, W) as PNG."""
+    img = np.asarray(img)
+    if img.dtype == bool:
+        img = img.astype(np.uint8) * 255
+    if img.ndim == 3:
+        if img.dtype != np.uint8 or img.shape[2] != 3:
+            raise ValueError(f"colour PNG must be (H, W, 3) uint8, got {img.dtype} {img.shape}")
+        img = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
+    elif img.dtype not in (np.uint8, np.uint16):
+        raise ValueError(f"single-channel PNG must be uint8 or uint16, got {img.dtype}")
+    ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    if not ok:
+        raise SceneFileError(path, "PNG encoding failed")
+    atomic_write_bytes(path, buf.tobytes())

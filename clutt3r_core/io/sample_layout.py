@@ -1,0 +1,305 @@
+"""The original method's sample layout (the authors' release, ``samples/*/data``).
+
+Layout of a scene folder::
+
+    transforms.json            nerfstudio-style: fl_x, fl_y, cx, cy, w, h,
+                               frames[i] = {file_path, depth_file_path, transform_matrix}
+                               transform_matrix = T_world_camera, OpenCV axes, metres
+    images/                    RGB PNGs
+    depth/                     uint16 PNG, millimetres, 0 = hole
+    instance_masks/            mask_{frame:06d}_{id:02d}.png, 0/255 binary candidates
+    instance_tree.json         (optional) a grouping in the original release's schema
+
+Our additions, all optional, so that the same loader reads synthetic scenes:
+
+    clutt3r_scene.json         {"name", "initial_frames": [...], "post_frames": [...]}
+    gt/objects.json            [{"id", "category", "name", "T_world_object", "color"}]
+    gt/instance_{frame:06d}.png  uint16, 0 = background, k + 1 = object k
+    gt/points.npz              points (N, 3) float32 metres, labels (N,) int32
+
+Which frames are initial and which are post-interaction: ``clutt3r_scene.json`` if
+present; else ``instance_tree.json`` (``initial.initial_idx`` and the ``updates``
+keys); else frames whose depth file exists are initial and the others post.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+from clutt3r_core.errors import SceneError, SceneFileError
+from clutt3r_core.io.images import (
+    atomic_write_bytes,
+    read_depth_mm,
+    read_label_png,
+    read_mask,
+    read_rgb,
+    write_png,
+)
+from clutt3r_core.scene import Camera, GroundTruth, MaskCandidates, ObjectInfo, Scene, View
+
+__all__ = ["load_sample_layout", "write_sample_layout", "is_sample_layout", "MASK_NAME"]
+
+MASK_NAME = re.compile(r"^mask_(\d+)_(\d+)\.png$")
+_DIGITS = re.compile(r"(\d+)(?!.*\d)")
+_THREADS = 8
+
+
+def is_sample_layout(root: str | Path) -> bool:
+    return (Path(root) / "transforms.json").is_file()
+
+
+def _read_json(path: Path) -> object:
+    if not path.is_file():
+        raise SceneFileError(path, "file not found")
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as e:
+        raise SceneFileError(path, f"not valid JSON ({e.msg} at line {e.lineno})") from None
+
+
+def _frame_index(file_path: str, position: int) -> int:
+    m = _DIGITS.search(Path(file_path).stem)
+    return int(m.group(1)) if m else position
+
+
+def _intrinsics(meta: dict, frame: dict, path: Path) -> tuple[np.ndarray, int, int]:
+    def get(key: str) -> float:
+        if key in frame:
+            return float(frame[key])
+        if key in meta:
+            return float(meta[key])
+        raise SceneFileError(path, f"missing intrinsics key '{key}'")
+
+    K = np.array([[get("fl_x"), 0.0, get("cx")], [0.0, get("fl_y"), get("cy")], [0.0, 0.0, 1.0]])
+    return K, int(get("w")), int(get("h"))
+
+
+def _scan_masks(mask_dir: Path) -> dict[int, list[tuple[int, Path]]]:
+    by_frame: dict[int, list[tuple[int, Path]]] = {}
+    for p in sorted(mask_dir.iterdir()):
+        m = MASK_NAME.match(p.name)
+        if m:
+            by_frame.setdefault(int(m.group(1)), []).append((int(m.group(2)), p))
+    return by_frame
+
+
+def _frame_roles(root: Path, frames: list[int], has_depth: dict[int, bool]) -> tuple[list[int], list[int]]:
+    side = root / "clutt3r_scene.json"
+    if side.is_file():
+        meta = _read_json(side)
+        try:
+            return [int(f) for f in meta["initial_frames"]], [int(f) for f in meta.get("post_frames", [])]
+        except (KeyError, TypeError, ValueError):
+            raise SceneFileError(side, "needs 'initial_frames' (list of frame indices)") from None
+    tree = root / "instance_tree.json"
+    if tree.is_file():
+        meta = _read_json(tree)
+        try:
+            initial = [int(f) for f in meta["initial"]["initial_idx"]]
+            post = sorted(int(f) for f in (meta.get("updates") or {}))
+            return initial, post
+        except (KeyError, TypeError, ValueError):
+            raise SceneFileError(tree, "has no 'initial.initial_idx' list") from None
+    initial = [f for f in frames if has_depth[f]]
+    post = [f for f in frames if not has_depth[f]]
+    return initial, post
+
+
+def load_sample_layout(root: str | Path, *, load_masks: bool = True, load_gt: bool = True) -> Scene:
+    """Load a scene folder in the sample layout (see module docstring).
+
+    Raises SceneFileError naming the file for every inconsistency: missing
+    transforms.json, an image whose size differs from w/h, a depth PNG that is not
+    16-bit, a mask whose size differs from its image, a non-rigid transform, an empty
+    mask folder, a corrupt PNG.
+    """
+    root = Path(root)
+    if not root.is_dir():
+        raise SceneFileError(root, "scene folder not found")
+    tpath = root / "transforms.json"
+    if not tpath.is_file():
+        raise SceneFileError(tpath, "missing: a sample-layout scene needs transforms.json")
+    meta = _read_json(tpath)
+    if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list) or not meta["frames"]:
+        raise SceneFileError(tpath, "has no 'frames' list")
+
+    entries = []
+    for i, fr in enumerate(meta["frames"]):
+        if not isinstance(fr, dict) or "file_path" not in fr or "transform_matrix" not in fr:
+            raise SceneFileError(tpath, f"frame {i} needs 'file_path' and 'transform_matrix'")
+        K, w, h = _intrinsics(meta, fr, tpath)
+        try:
+            cam = Camera(K, w, h, np.asarray(fr["transform_matrix"], dtype=np.float64))
+        except SceneError as e:
+            raise SceneFileError(tpath, f"frame {i} ({fr['file_path']}): {e}") from None
+        frame = _frame_index(fr["file_path"], i)
+        dpath = root / fr["depth_file_path"] if fr.get("depth_file_path") else None
+        entries.append((frame, root / fr["file_path"], dpath, cam))
+
+    frames = [e[0] for e in entries]
+    if len(set(frames)) != len(frames):
+        raise SceneFileError(tpath, f"duplicate frame indices {frames}")
+    has_depth = {f: d is not None and d.is_file() for f, _, d, _ in entries}
+    initial_frames, post_frames = _frame_roles(root, frames, has_depth)
+    unknown = (set(initial_frames) | set(post_frames)) - set(frames)
+    if unknown:
+        raise SceneFileError(tpath, f"frames {sorted(unknown)} are named as initial/post but not listed")
+    for f, _, d, _ in entries:
+        if f in initial_frames and not has_depth[f]:
+            raise SceneFileError(d or tpath, f"initial frame {f} has no depth file")
+
+    masks_by_frame: dict[int, list[tuple[int, Path]]] = {}
+    mask_dir = root / "instance_masks"
+    if load_masks and mask_dir.is_dir():
+        masks_by_frame = _scan_masks(mask_dir)
+        if not masks_by_frame:
+            raise SceneFileError(mask_dir, "mask folder is empty (no mask_FFFFFF_MM.png files)")
+
+    def load_view(entry: tuple) -> View:
+        frame, ipath, dpath, cam = entry
+        hw = (cam.height, cam.width)
+        rgb = read_rgb(ipath, hw)
+        depth = read_depth_mm(dpath, hw) if has_depth[frame] else None
+        masks = None
+        if load_masks and mask_dir.is_dir():
+            items = masks_by_frame.get(frame, [])
+            if items:
+                stack = np.stack([read_mask(p, hw) for _, p in items])
+            else:
+                stack = np.zeros((0, *hw), bool)
+            masks = MaskCandidates(stack, np.array([i for i, _ in items], np.int32))
+        return View(frame=frame, rgb=rgb, camera=cam, depth=depth, masks=masks, name=ipath.name)
+
+    with ThreadPoolExecutor(_THREADS) as pool:
+        views = list(pool.map(load_view, entries))
+    order = np.argsort([v.frame for v in views], kind="stable")
+    views = [views[i] for i in order]
+    index = {v.frame: i for i, v in enumerate(views)}
+
+    gt = _load_gt(root, views) if load_gt and (root / "gt" / "objects.json").is_file() else None
+    name = root.parent.name if root.name == "data" else root.name
+    side = root / "clutt3r_scene.json"
+    if side.is_file():
+        name = str(_read_json(side).get("name", name))
+    return Scene(
+        views=tuple(views),
+        initial=tuple(index[f] for f in initial_frames),
+        post=tuple(index[f] for f in post_frames),
+        ground_truth=gt,
+        name=name,
+        root=root,
+    )
+
+
+def _load_gt(root: Path, views: list[View]) -> GroundTruth:
+    gdir = root / "gt"
+    opath = gdir / "objects.json"
+    raw = _read_json(opath)
+    if not isinstance(raw, list):
+        raise SceneFileError(opath, "must be a list of objects")
+    objects = []
+    for o in raw:
+        try:
+            T = o.get("T_world_object")
+            objects.append(
+                ObjectInfo(
+                    id=int(o["id"]),
+                    category=str(o["category"]),
+                    name=str(o.get("name", "")),
+                    T_world_object=None if T is None else np.asarray(T, np.float64),
+                    color=None if o.get("color") is None else tuple(int(c) for c in o["color"]),
+                )
+            )
+        except (KeyError, TypeError, ValueError, SceneError) as e:
+            raise SceneFileError(opath, f"bad object entry {o!r}: {e}") from None
+    maps = {}
+    for v in views:
+        p = gdir / f"instance_{v.frame:06d}.png"
+        if p.is_file():
+            maps[v.frame] = read_label_png(p, (v.camera.height, v.camera.width)) - 1
+    points = np.zeros((0, 3), np.float32)
+    labels = np.zeros((0,), np.int32)
+    ppath = gdir / "points.npz"
+    if ppath.is_file():
+        try:
+            with np.load(ppath) as z:
+                points, labels = z["points"], z["labels"]
+        except (OSError, KeyError, ValueError) as e:
+            raise SceneFileError(ppath, f"unreadable ground-truth points: {e}") from None
+    try:
+        return GroundTruth(tuple(objects), maps, points, labels)
+    except SceneError as e:
+        raise SceneFileError(gdir, str(e)) from None
+
+
+def _dump_json(path: Path, obj: object) -> None:
+    atomic_write_bytes(path, (json.dumps(obj, indent=1) + "\n").encode())
+
+
+def write_sample_layout(scene: Scene, root: str | Path, *, instance_tree: dict | None = None) -> Path:
+    """Write ``scene`` in the sample layout. Reading it back gives the same arrays.
+
+    Depth is written in whole millimetres: a scene whose depth is already on the
+    millimetre grid (every loaded scene, every generated one) round-trips exactly.
+    """
+    root = Path(root)
+    (root / "images").mkdir(parents=True, exist_ok=True)
+    (root / "depth").mkdir(exist_ok=True)
+    frames_meta = []
+    cam0 = scene.views[0].camera
+    with ThreadPoolExecutor(_THREADS) as pool:
+        jobs = []
+        for v in scene.views:
+            img_rel = f"images/image_{v.frame:06d}.png"
+            dep_rel = f"depth/depth_{v.frame:06d}.png"
+            entry = {"file_path": img_rel, "depth_file_path": dep_rel,
+                     "transform_matrix": v.camera.T_world_camera.tolist()}
+            c = v.camera
+            if not (np.allclose(c.K, cam0.K) and (c.width, c.height) == (cam0.width, cam0.height)):
+                entry.update(fl_x=c.fx, fl_y=c.fy, cx=c.cx, cy=c.cy, w=c.width, h=c.height)
+            frames_meta.append(entry)
+            jobs.append(pool.submit(write_png, root / img_rel, v.rgb))
+            if v.depth is not None:
+                mm = np.nan_to_num(v.depth, nan=0.0) * 1000.0
+                if mm.max(initial=0) > 65535:
+                    raise SceneError(f"{v.name}: depth beyond 65.535 m cannot be written as uint16 mm")
+                jobs.append(pool.submit(write_png, root / dep_rel, np.round(mm).astype(np.uint16)))
+            if v.masks is not None and len(v.masks):
+                (root / "instance_masks").mkdir(exist_ok=True)
+                for mid, m in zip(v.masks.ids, v.masks.masks):
+                    jobs.append(pool.submit(write_png, root / "instance_masks" / f"mask_{v.frame:06d}_{mid:02d}.png", m))
+        gt = scene.ground_truth
+        if gt is not None:
+            (root / "gt").mkdir(exist_ok=True)
+            for f, m in gt.instance_maps.items():
+                jobs.append(pool.submit(write_png, root / "gt" / f"instance_{f:06d}.png", (m + 1).astype(np.uint16)))
+        for j in jobs:
+            j.result()
+    meta = {"camera_model": "OPENCV", "fl_x": cam0.fx, "fl_y": cam0.fy, "cx": cam0.cx, "cy": cam0.cy,
+            "w": cam0.width, "h": cam0.height, "frames": frames_meta}
+    _dump_json(root / "transforms.json", meta)
+    _dump_json(root / "clutt3r_scene.json", {
+        "name": scene.name,
+        "initial_frames": [scene.views[i].frame for i in scene.initial],
+        "post_frames": [scene.views[i].frame for i in scene.post],
+    })
+    if gt is not None:
+        _dump_json(root / "gt" / "objects.json", [
+            {"id": o.id, "category": o.category, "name": o.name,
+             "T_world_object": None if o.T_world_object is None else o.T_world_object.tolist(),
+             "color": None if o.color is None else list(o.color)}
+            for o in gt.objects
+        ])
+        import io
+
+        buf = io.BytesIO()
+        np.savez_compressed(buf, points=gt.points, labels=gt.point_labels)
+        atomic_write_bytes(root / "gt" / "points.npz", buf.getvalue())
+    if instance_tree is not None:
+        _dump_json(root / "instance_tree.json", instance_tree)
+    return root

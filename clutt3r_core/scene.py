@@ -1,0 +1,363 @@
+"""The scene model: cameras, views, mask candidates, ground truth.
+
+Every type here is a frozen dataclass of numpy arrays, validated on construction
+(shape, dtype, units). Conventions (docs/conventions.md): OpenCV camera axes
+(x right, y down, z forward), ``T_world_camera`` maps camera coordinates to world
+coordinates, metres, world z up, image coordinates (u, v) = (column, row).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from clutt3r_core.errors import SceneError
+
+__all__ = [
+    "Camera",
+    "MaskCandidates",
+    "View",
+    "ObjectInfo",
+    "GroundTruth",
+    "Scene",
+    "check_rigid",
+]
+
+_RIGID_TOL = 1e-3
+
+
+def check_rigid(T: np.ndarray, what: str) -> np.ndarray:
+    """Return ``T`` as float64 (4, 4) or raise SceneError naming ``what``.
+
+    A rigid transform has an orthonormal rotation block with determinant +1 and a
+    last row (0, 0, 0, 1). The tolerance (1e-3) admits float32 round-off in files.
+    """
+    T = np.asarray(T, dtype=np.float64)
+    if T.shape != (4, 4):
+        raise SceneError(f"{what}: transform must be 4x4, got shape {T.shape}")
+    if not np.all(np.isfinite(T)):
+        raise SceneError(f"{what}: transform contains NaN or inf")
+    if not np.allclose(T[3], [0.0, 0.0, 0.0, 1.0], atol=_RIGID_TOL):
+        raise SceneError(f"{what}: last row of the transform must be [0, 0, 0, 1], got {T[3].tolist()}")
+    R = T[:3, :3]
+    err = np.abs(R.T @ R - np.eye(3)).max()
+    if err > _RIGID_TOL or np.linalg.det(R) < 0:
+        raise SceneError(
+            f"{what}: transform is not rigid (rotation not orthonormal, max |R^T R - I| = {err:.3g},"
+            f" det = {np.linalg.det(R):.3g}); scaled or sheared poses are not supported"
+        )
+    return T
+
+
+def _frozen_array(a: np.ndarray) -> np.ndarray:
+    a = np.ascontiguousarray(a)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class Camera:
+    """A pinhole camera.
+
+    Attributes:
+        K: (3, 3) float64 intrinsics in pixels; u = fx * x / z + cx (column), v = fy * y / z + cy (row).
+        width: image width in pixels.
+        height: image height in pixels.
+        T_world_camera: (4, 4) float64 rigid camera-to-world transform, OpenCV axes, metres.
+    """
+
+    K: np.ndarray
+    width: int
+    height: int
+    T_world_camera: np.ndarray
+
+    def __post_init__(self) -> None:
+        K = np.asarray(self.K, dtype=np.float64)
+        if K.shape != (3, 3):
+            raise SceneError(f"camera intrinsics K must be 3x3, got shape {K.shape}")
+        if not (K[0, 0] > 0 and K[1, 1] > 0) or not np.allclose(K[2], [0, 0, 1]):
+            raise SceneError(f"camera intrinsics K must have fx, fy > 0 and last row [0, 0, 1], got {K.tolist()}")
+        if int(self.width) <= 0 or int(self.height) <= 0:
+            raise SceneError(f"camera size must be positive, got {self.width}x{self.height}")
+        object.__setattr__(self, "K", _frozen_array(K))
+        object.__setattr__(self, "width", int(self.width))
+        object.__setattr__(self, "height", int(self.height))
+        object.__setattr__(self, "T_world_camera", _frozen_array(check_rigid(self.T_world_camera, "camera pose")))
+
+    @property
+    def fx(self) -> float:
+        return float(self.K[0, 0])
+
+    @property
+    def fy(self) -> float:
+        return float(self.K[1, 1])
+
+    @property
+    def cx(self) -> float:
+        return float(self.K[0, 2])
+
+    @property
+    def cy(self) -> float:
+        return float(self.K[1, 2])
+
+    @property
+    def T_camera_world(self) -> np.ndarray:
+        """(4, 4) world-to-camera transform (the inverse of ``T_world_camera``)."""
+        R = self.T_world_camera[:3, :3]
+        t = self.T_world_camera[:3, 3]
+        T = np.eye(4)
+        T[:3, :3] = R.T
+        T[:3, 3] = -R.T @ t
+        return T
+
+    def project(self, points_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Project (N, 3) world points. Returns (uv (N, 2) float64 pixels, z (N,) metres)."""
+        p = np.asarray(points_world, dtype=np.float64).reshape(-1, 3)
+        T = self.T_camera_world
+        pc = p @ T[:3, :3].T + T[:3, 3]
+        z = pc[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = self.fx * pc[:, 0] / z + self.cx
+            v = self.fy * pc[:, 1] / z + self.cy
+        return np.stack([u, v], axis=1), z
+
+    def backproject(self, depth: np.ndarray, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        """Back-project a (H, W) depth map (metres, NaN or 0 = hole) to world points.
+
+        Returns (points (N, 3) float64 world metres, flat pixel indices (N,) int64 into
+        the full-resolution image, row-major) for the valid pixels on a ``stride`` grid.
+        """
+        depth = np.asarray(depth)
+        if depth.shape != (self.height, self.width):
+            raise SceneError(f"depth shape {depth.shape} does not match camera {self.height}x{self.width}")
+        vs, us = np.mgrid[0 : self.height : stride, 0 : self.width : stride]
+        z = depth[vs, us]
+        ok = np.isfinite(z) & (z > 0)
+        us, vs, z = us[ok], vs[ok], z[ok].astype(np.float64)
+        x = (us - self.cx) / self.fx * z
+        y = (vs - self.cy) / self.fy * z
+        pc = np.stack([x, y, z], axis=1)
+        T = self.T_world_camera
+        pw = pc @ T[:3, :3].T + T[:3, 3]
+        return pw, (vs.astype(np.int64) * self.width + us.astype(np.int64))
+
+
+@dataclass(frozen=True, eq=False)
+class MaskCandidates:
+    """The noisy, overlapping mask candidates of one view (e.g. Grounded SAM, prompt "object").
+
+    Attributes:
+        masks: (M, H, W) bool, one binary mask per candidate. M may be 0.
+        ids: (M,) int32 candidate ids, unique within the view (the ``MM`` of
+            ``mask_FFFFFF_MM.png``; 1-based in the sample layout).
+        scores: optional (M,) float32 detector confidences in [0, 1].
+    """
+
+    masks: np.ndarray
+    ids: np.ndarray
+    scores: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        masks = np.asarray(self.masks)
+        if masks.ndim != 3:
+            raise SceneError(f"mask stack must be (M, H, W), got shape {masks.shape}")
+        masks = masks.astype(bool, copy=False)
+        ids = np.asarray(self.ids, dtype=np.int32).reshape(-1)
+        if ids.shape[0] != masks.shape[0]:
+            raise SceneError(f"{masks.shape[0]} masks but {ids.shape[0]} ids")
+        if len(np.unique(ids)) != len(ids):
+            raise SceneError(f"mask ids must be unique within a view, got {ids.tolist()}")
+        object.__setattr__(self, "masks", _frozen_array(masks))
+        object.__setattr__(self, "ids", _frozen_array(ids))
+        if self.scores is not None:
+            s = np.asarray(self.scores, dtype=np.float32).reshape(-1)
+            if s.shape != ids.shape:
+                raise SceneError(f"mask scores shape {s.shape} does not match {ids.shape[0]} masks")
+            object.__setattr__(self, "scores", _frozen_array(s))
+
+    def __len__(self) -> int:
+        return int(self.masks.shape[0])
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return int(self.masks.shape[1]), int(self.masks.shape[2])
+
+    def areas(self) -> np.ndarray:
+        """(M,) int64 pixel count of every mask."""
+        return self.masks.reshape(len(self), -1).sum(axis=1)
+
+    def index_of(self, mask_id: int) -> int:
+        hits = np.flatnonzero(self.ids == mask_id)
+        if len(hits) == 0:
+            raise KeyError(f"no mask with id {mask_id}")
+        return int(hits[0])
+
+    @staticmethod
+    def empty(height: int, width: int) -> "MaskCandidates":
+        return MaskCandidates(np.zeros((0, height, width), bool), np.zeros((0,), np.int32))
+
+
+@dataclass(frozen=True, eq=False)
+class View:
+    """One posed RGB-D image.
+
+    Attributes:
+        frame: frame index as in the file names (``image_{frame:06d}.png``).
+        rgb: (H, W, 3) uint8 colour image.
+        depth: (H, W) float32 z-depth in metres, NaN for holes (0 in files is read as a hole);
+            None when the frame has no depth (e.g. RGB-only post-interaction frames).
+        camera: the camera; its size must equal the image size.
+        masks: mask candidates of this view, or None when none were given.
+        name: a human-readable name (the image file name when loaded).
+    """
+
+    frame: int
+    rgb: np.ndarray
+    camera: Camera
+    depth: np.ndarray | None = None
+    masks: MaskCandidates | None = None
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        rgb = np.asarray(self.rgb)
+        H, W = self.camera.height, self.camera.width
+        label = self.name or f"frame {self.frame}"
+        if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
+            raise SceneError(f"{label}: rgb must be (H, W, 3) uint8, got {rgb.dtype} {rgb.shape}")
+        if rgb.shape[:2] != (H, W):
+            raise SceneError(f"{label}: image is {rgb.shape[1]}x{rgb.shape[0]} but the camera says {W}x{H}")
+        object.__setattr__(self, "rgb", _frozen_array(rgb))
+        object.__setattr__(self, "frame", int(self.frame))
+        if self.depth is not None:
+            d = np.asarray(self.depth, dtype=np.float32)
+            if d.shape != (H, W):
+                raise SceneError(f"{label}: depth is {d.shape[1]}x{d.shape[0]} but the camera says {W}x{H}")
+            d = d.copy()
+            d[~(d > 0)] = np.nan  # 0, negative and NaN are holes; inf stays and is rejected below
+            if np.isinf(d).any():
+                raise SceneError(f"{label}: depth contains inf")
+            object.__setattr__(self, "depth", _frozen_array(d))
+        if self.masks is not None and self.masks.shape != (H, W) and len(self.masks) > 0:
+            raise SceneError(
+                f"{label}: masks are {self.masks.shape[1]}x{self.masks.shape[0]} but the image is {W}x{H}"
+            )
+
+
+@dataclass(frozen=True)
+class ObjectInfo:
+    """One ground-truth object.
+
+    Attributes:
+        id: instance id, 0-based; pixels and points carry this id (-1 = background).
+        category: a category name used for language queries ("mug", "banana").
+        name: source model name (e.g. the YCB model id), free text.
+        T_world_object: (4, 4) rigid object-to-world pose in metres, or None if unknown.
+        color: (3,) uint8 nominal colour, or None.
+    """
+
+    id: int
+    category: str
+    name: str = ""
+    T_world_object: np.ndarray | None = None
+    color: tuple[int, int, int] | None = None
+
+    def __post_init__(self) -> None:
+        if self.T_world_object is not None:
+            object.__setattr__(
+                self, "T_world_object", _frozen_array(check_rigid(self.T_world_object, f"object {self.id} pose"))
+            )
+
+
+@dataclass(frozen=True, eq=False)
+class GroundTruth:
+    """Optional ground truth of a scene.
+
+    Attributes:
+        objects: the objects, ids 0..K-1 in order.
+        instance_maps: frame -> (H, W) int32 per-pixel object id, -1 = background.
+        points: (N, 3) float32 labelled world points in metres (from clean depth).
+        point_labels: (N,) int32 object id per point, -1 = background (table, tray).
+    """
+
+    objects: tuple[ObjectInfo, ...]
+    instance_maps: dict[int, np.ndarray] = field(default_factory=dict)
+    points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
+    point_labels: np.ndarray = field(default_factory=lambda: np.zeros((0,), np.int32))
+
+    def __post_init__(self) -> None:
+        objs = tuple(self.objects)
+        if [o.id for o in objs] != list(range(len(objs))):
+            raise SceneError(f"ground-truth object ids must be 0..K-1 in order, got {[o.id for o in objs]}")
+        object.__setattr__(self, "objects", objs)
+        maps = {}
+        for f, m in self.instance_maps.items():
+            m = np.asarray(m, dtype=np.int32)
+            if m.ndim != 2:
+                raise SceneError(f"ground-truth instance map of frame {f} must be (H, W), got {m.shape}")
+            if m.size and (m.min() < -1 or m.max() >= len(objs)):
+                raise SceneError(f"ground-truth instance map of frame {f} has ids outside -1..{len(objs) - 1}")
+            maps[int(f)] = _frozen_array(m)
+        object.__setattr__(self, "instance_maps", maps)
+        p = np.asarray(self.points, dtype=np.float32).reshape(-1, 3)
+        lab = np.asarray(self.point_labels, dtype=np.int32).reshape(-1)
+        if p.shape[0] != lab.shape[0]:
+            raise SceneError(f"{p.shape[0]} ground-truth points but {lab.shape[0]} labels")
+        object.__setattr__(self, "points", _frozen_array(p))
+        object.__setattr__(self, "point_labels", _frozen_array(lab))
+
+    @property
+    def categories(self) -> tuple[str, ...]:
+        return tuple(sorted({o.category for o in self.objects}))
+
+
+@dataclass(frozen=True, eq=False)
+class Scene:
+    """A multi-view scene.
+
+    Attributes:
+        views: all views, ordered by frame.
+        initial: indices into ``views`` of the initial (pre-interaction) views used for segmentation.
+        post: indices into ``views`` of post-interaction views, in time order.
+        ground_truth: optional ground truth (synthetic scenes, BOP scenes).
+        name: scene name.
+        root: the folder it was loaded from, if any.
+    """
+
+    views: tuple[View, ...]
+    initial: tuple[int, ...]
+    post: tuple[int, ...] = ()
+    ground_truth: GroundTruth | None = None
+    name: str = ""
+    root: Path | None = None
+
+    def __post_init__(self) -> None:
+        views = tuple(self.views)
+        object.__setattr__(self, "views", views)
+        object.__setattr__(self, "initial", tuple(int(i) for i in self.initial))
+        object.__setattr__(self, "post", tuple(int(i) for i in self.post))
+        frames = [v.frame for v in views]
+        if len(set(frames)) != len(frames):
+            raise SceneError(f"{self.name or 'scene'}: duplicate frame indices {frames}")
+        n = len(views)
+        for which in ("initial", "post"):
+            for i in getattr(self, which):
+                if not 0 <= i < n:
+                    raise SceneError(f"{self.name or 'scene'}: {which} view index {i} out of range 0..{n - 1}")
+        if set(self.initial) & set(self.post):
+            raise SceneError(f"{self.name or 'scene'}: a view cannot be both initial and post-interaction")
+
+    @property
+    def initial_views(self) -> tuple[View, ...]:
+        return tuple(self.views[i] for i in self.initial)
+
+    @property
+    def post_views(self) -> tuple[View, ...]:
+        return tuple(self.views[i] for i in self.post)
+
+    def view_by_frame(self, frame: int) -> View:
+        for v in self.views:
+            if v.frame == frame:
+                return v
+        raise KeyError(f"no view with frame {frame}")
