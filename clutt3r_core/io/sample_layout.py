@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import re
+import zipfile
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -69,11 +70,13 @@ def _frame_index(file_path: str, position: int) -> int:
 
 def _intrinsics(meta: dict, frame: dict, path: Path) -> tuple[np.ndarray, int, int]:
     def get(key: str) -> float:
-        if key in frame:
-            return float(frame[key])
-        if key in meta:
-            return float(meta[key])
-        raise SceneFileError(path, f"missing intrinsics key '{key}'")
+        src = frame if key in frame else meta if key in meta else None
+        if src is None:
+            raise SceneFileError(path, f"missing intrinsics key '{key}'")
+        try:
+            return float(src[key])
+        except (TypeError, ValueError):
+            raise SceneFileError(path, f"intrinsics key '{key}' must be a number, got {src[key]!r}") from None
 
     K = np.array([[get("fl_x"), 0.0, get("cx")], [0.0, get("fl_y"), get("cy")], [0.0, 0.0, 1.0]])
     return K, int(get("w")), int(get("h"))
@@ -88,13 +91,16 @@ def _scan_masks(mask_dir: Path) -> dict[int, list[tuple[int, Path]]]:
     return by_frame
 
 
-def _frame_roles(root: Path, frames: list[int], has_depth: dict[int, bool]) -> tuple[list[int], list[int]]:
+def _frame_roles(
+    root: Path, frames: list[int], has_depth: dict[int, bool]
+) -> tuple[list[int], list[int], Path | None]:
+    """(initial frames, post frames, the file that named them or None when inferred from depth)."""
     side = root / "clutt3r_scene.json"
     if side.is_file():
         meta = _read_json(side)
         try:
-            return [int(f) for f in meta["initial_frames"]], [int(f) for f in meta.get("post_frames", [])]
-        except (KeyError, TypeError, ValueError):
+            return [int(f) for f in meta["initial_frames"]], [int(f) for f in meta.get("post_frames", [])], side
+        except (KeyError, TypeError, ValueError, AttributeError):
             raise SceneFileError(side, "needs 'initial_frames' (list of frame indices)") from None
     tree = root / "instance_tree.json"
     if tree.is_file():
@@ -102,12 +108,12 @@ def _frame_roles(root: Path, frames: list[int], has_depth: dict[int, bool]) -> t
         try:
             initial = [int(f) for f in meta["initial"]["initial_idx"]]
             post = sorted(int(f) for f in (meta.get("updates") or {}))
-            return initial, post
-        except (KeyError, TypeError, ValueError):
+            return initial, post, tree
+        except (KeyError, TypeError, ValueError, AttributeError):
             raise SceneFileError(tree, "has no 'initial.initial_idx' list") from None
     initial = [f for f in frames if has_depth[f]]
     post = [f for f in frames if not has_depth[f]]
-    return initial, post
+    return initial, post, None
 
 
 def load_sample_layout(root: str | Path, *, load_masks: bool = True, load_gt: bool = True) -> Scene:
@@ -132,9 +138,19 @@ def load_sample_layout(root: str | Path, *, load_masks: bool = True, load_gt: bo
     for i, fr in enumerate(meta["frames"]):
         if not isinstance(fr, dict) or "file_path" not in fr or "transform_matrix" not in fr:
             raise SceneFileError(tpath, f"frame {i} needs 'file_path' and 'transform_matrix'")
+        for key in ("file_path", "depth_file_path"):
+            if fr.get(key) is not None and not isinstance(fr[key], str):
+                raise SceneFileError(tpath, f"frame {i}: '{key}' must be a string, got {fr[key]!r}")
         K, w, h = _intrinsics(meta, fr, tpath)
         try:
-            cam = Camera(K, w, h, np.asarray(fr["transform_matrix"], dtype=np.float64))
+            T = np.asarray(fr["transform_matrix"], dtype=np.float64)
+        except (TypeError, ValueError):
+            # ragged or non-numeric nested lists: numpy's own message would not name the file
+            raise SceneFileError(
+                tpath, f"frame {i} ({fr['file_path']}): 'transform_matrix' must be a 4x4 list of numbers"
+            ) from None
+        try:
+            cam = Camera(K, w, h, T)
         except SceneError as e:
             raise SceneFileError(tpath, f"frame {i} ({fr['file_path']}): {e}") from None
         frame = _frame_index(fr["file_path"], i)
@@ -145,10 +161,17 @@ def load_sample_layout(root: str | Path, *, load_masks: bool = True, load_gt: bo
     if len(set(frames)) != len(frames):
         raise SceneFileError(tpath, f"duplicate frame indices {frames}")
     has_depth = {f: d is not None and d.is_file() for f, _, d, _ in entries}
-    initial_frames, post_frames = _frame_roles(root, frames, has_depth)
+    initial_frames, post_frames, roles_src = _frame_roles(root, frames, has_depth)
     unknown = (set(initial_frames) | set(post_frames)) - set(frames)
     if unknown:
-        raise SceneFileError(tpath, f"frames {sorted(unknown)} are named as initial/post but not listed")
+        raise SceneFileError(
+            roles_src or tpath,
+            f"frames {sorted(unknown)} are named as initial/post but transforms.json does not list them"
+            f" (it lists {sorted(frames)})",
+        )
+    both = set(initial_frames) & set(post_frames)
+    if both:
+        raise SceneFileError(roles_src or tpath, f"frames {sorted(both)} are listed as both initial and post-interaction")
     for f, _, d, _ in entries:
         if f in initial_frames and not has_depth[f]:
             raise SceneFileError(d or tpath, f"initial frame {f} has no depth file")
@@ -229,7 +252,7 @@ def _load_gt(root: Path, views: list[View]) -> GroundTruth:
         try:
             with np.load(ppath) as z:
                 points, labels = z["points"], z["labels"]
-        except (OSError, KeyError, ValueError) as e:
+        except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile) as e:
             raise SceneFileError(ppath, f"unreadable ground-truth points: {e}") from None
     try:
         return GroundTruth(tuple(objects), maps, points, labels)
