@@ -1,0 +1,361 @@
+"""Cross-view grouping of tree leaves and residual-node parent substitution
+(Sec. III-B.2 and III-B.3, Algorithm 1).
+
+Nodes are the masks of all trees (``NodeTable``); grouping starts from the leaves.
+Similarities are leaf-level matrices over all nodes; a group's edge to another
+group is the mean of the member-pair similarities (GroupAndRewire, mean linkage).
+
+The one rule we add to the paper's text, and why: **a group holds at most one mask
+per view.** Two groups whose view sets intersect have no edge, so a merge never
+puts two masks of one view together. The paper's phi(.) forbids edges between
+leaves of one frame; the original release's trees obey the stronger rule without
+exception, and allowing two masks of a view in a group lets stage 2 merge whole
+same-coloured objects (shared/notes/grouping-findings.md, point 1).
+
+Determinism: nodes are indexed in canonical order (frame, mask id), groups are
+kept sorted by their first member, and ties on the best score go to the first pair
+in that order, so the result does not depend on the order masks or views arrive in.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from clutt3r_core.errors import SceneError
+
+__all__ = [
+    "GroupingConfig",
+    "NodeTable",
+    "SimilarityGraph",
+    "MergeStep",
+    "Substitution",
+    "GroupingResult",
+    "spatial_similarity",
+    "semantic_similarity",
+    "group_nodes",
+    "substitute_residuals",
+    "run_grouping",
+]
+
+STAGE_SPATIAL = 0
+STAGE_SEMANTIC = 1
+STAGE_NAMES = ("spatial", "semantic")
+
+
+@dataclass(frozen=True)
+class GroupingConfig:
+    """Two-stage grouping and substitution (Sec. III-B.2, III-B.3; thresholds Sec. IV)."""
+
+    tau_spat: float = 0.5
+    """Sec. IV, tau_spat: stage 1 merges while the best mean S_spatial >= this."""
+    tau_sem: float = 0.65
+    """Sec. IV, tau_sem: stage 2 merges while the best mean S_semantic >= this."""
+    use_spatial: bool = True
+    """False = the paper's "w/o S_spatial" ablation (Table III): stage 1 is skipped."""
+    use_semantic: bool = True
+    """False skips stage 2 (ours, for diagnosis)."""
+    substitution: bool = True
+    """False = the paper's "w/o substitution" ablation (Table III)."""
+    substitution_rounds: int = 1
+    """Sec. III-B.3: "converges within a single iteration"; more rounds climb further up the trees."""
+    one_mask_per_view: bool = True
+    """Ours, stated in the module docstring; False lets groups share views (for the ablation only)."""
+
+
+@dataclass(frozen=True, eq=False)
+class NodeTable:
+    """Every mask of every tree, in canonical order (frame, then mask id).
+
+    Attributes:
+        frame: (U,) int32 frame of the node's view.
+        view: (U,) int32 index of that view among the initial views (0..V-1).
+        mask_id: (U,) int32 mask id within the view.
+        parent: (U,) int32 node index of the tree parent, -1 for roots.
+        is_leaf: (U,) bool: the node has no child in its tree (proper-segment candidate).
+        background: (U,) bool: the mask lies mostly on the support surface; never grouped.
+    """
+
+    frame: np.ndarray
+    view: np.ndarray
+    mask_id: np.ndarray
+    parent: np.ndarray
+    is_leaf: np.ndarray
+    background: np.ndarray
+
+    def __post_init__(self) -> None:
+        u = len(self.frame)
+        for name in ("view", "mask_id", "parent", "is_leaf", "background"):
+            if getattr(self, name).shape != (u,):
+                raise SceneError(f"NodeTable.{name} must have shape ({u},)")
+
+    def __len__(self) -> int:
+        return len(self.frame)
+
+    def key(self, i: int) -> tuple[int, int]:
+        return int(self.frame[i]), int(self.mask_id[i])
+
+    def descendant_leaves(self) -> list[np.ndarray]:
+        """For every node, the node indices of the leaves in its subtree (itself for a leaf)."""
+        out: list[list[int]] = [[] for _ in range(len(self))]
+        for leaf in np.flatnonzero(self.is_leaf):
+            j = leaf
+            while j >= 0:
+                out[j].append(int(leaf))
+                j = self.parent[j]
+        return [np.asarray(sorted(x), np.int64) for x in out]
+
+
+@dataclass(frozen=True, eq=False)
+class SimilarityGraph:
+    """Leaf-graph edge weights over all nodes (Algorithm 1, ConstructLeafGraph).
+
+    Attributes:
+        s_spatial: (U, U) float32 S_spatial (eq. 2); NaN where there is no edge (same view).
+        s_semantic: (U, U) float32 S_semantic (eq. 3); NaN where there is no edge.
+    """
+
+    s_spatial: np.ndarray
+    s_semantic: np.ndarray
+
+
+@dataclass(frozen=True)
+class MergeStep:
+    """One GroupAndRewire call: groups ``a`` and ``b`` (node indices) became one group."""
+
+    stage: str
+    round: int
+    a: tuple[int, ...]
+    b: tuple[int, ...]
+    score: float
+    """The mean-linkage similarity of the stage that chose the merge."""
+    spatial: float
+    semantic: float
+
+
+@dataclass(frozen=True)
+class Substitution:
+    """Residual leaves replaced by their tree parent (Sec. III-B.3)."""
+
+    round: int
+    parent: int
+    replaced: tuple[int, ...]
+
+
+@dataclass(frozen=True, eq=False)
+class GroupingResult:
+    """Final groups and every step that produced them."""
+
+    groups: tuple[tuple[int, ...], ...]
+    merges: tuple[MergeStep, ...]
+    substitutions: tuple[Substitution, ...]
+    events: tuple[tuple[str, int], ...] = field(default=())
+    """Order of all steps: ("merge", i) or ("substitution", j) indices into the two lists."""
+
+
+def spatial_similarity(occupancy: np.ndarray, weights: np.ndarray, eps: float = 1e-9) -> np.ndarray:
+    """(U, U) weighted Jaccard of occupancy rows (eq. 2).
+
+    occupancy: (U, K) o_i(k) in [0, 1]; weights: (K,) w_hat_k. Only super-voxels
+    touched by some node enter the sums; the pairwise min / max is done in blocks.
+    """
+    occ = np.asarray(occupancy, np.float32)
+    cols = np.flatnonzero(occ.max(axis=0, initial=0) > 0)
+    occ = occ[:, cols]
+    w = np.asarray(weights, np.float32)[cols]
+    u = occ.shape[0]
+    inter = np.zeros((u, u), np.float32)
+    union = np.zeros((u, u), np.float32)
+    block = max(1, int(2e7 // max(1, u * len(cols))))
+    for s in range(0, u, block):
+        a = occ[s : s + block, None, :]
+        inter[s : s + block] = (np.minimum(a, occ[None]) * w).sum(-1)
+        union[s : s + block] = (np.maximum(a, occ[None]) * w).sum(-1)
+    return inter / (union + eps)
+
+
+def semantic_similarity(embeddings: np.ndarray) -> np.ndarray:
+    """(U, U) cosine of unit embeddings (eq. 3)."""
+    e = np.asarray(embeddings, np.float32)
+    return np.clip(e @ e.T, -1.0, 1.0)
+
+
+class _Groups:
+    """Active groups with mean-linkage sums (the state of GroupBySimilarity)."""
+
+    def __init__(self, groups: list[list[int]], s_spat: np.ndarray, s_sem: np.ndarray, view: np.ndarray, n_views: int):
+        self.members = [sorted(g) for g in groups]
+        self.members.sort(key=lambda g: g[0])
+        self.s_spat = np.nan_to_num(s_spat, nan=0.0).astype(np.float64)
+        self.s_sem = np.nan_to_num(s_sem, nan=0.0).astype(np.float64)
+        self.view = view
+        self.n_views = n_views
+        self._rebuild()
+
+    def _rebuild(self) -> None:
+        g = len(self.members)
+        memb = np.zeros((g, len(self.view)), np.float64)
+        views = np.zeros((g, self.n_views), bool)
+        for i, m in enumerate(self.members):
+            memb[i, m] = 1.0
+            views[i, self.view[m]] = True
+        self.sum_spat = memb @ self.s_spat @ memb.T
+        self.sum_sem = memb @ self.s_sem @ memb.T
+        self.size = memb.sum(axis=1)
+        self.views = views
+
+    def valid(self, one_per_view: bool) -> np.ndarray:
+        g = len(self.members)
+        ok = ~np.eye(g, dtype=bool)
+        vi = self.views.astype(np.int32)
+        shared = (vi @ vi.T) > 0
+        if one_per_view:
+            ok &= ~shared
+        else:
+            # without the rule, two groups that are each one mask of the same view still have no edge (phi)
+            single = self.size == 1
+            ok &= ~(shared & single[:, None] & single[None, :])
+        return np.triu(ok, 1)
+
+    def mean(self, which: int) -> np.ndarray:
+        s = self.sum_spat if which == STAGE_SPATIAL else self.sum_sem
+        return s / np.outer(self.size, self.size)
+
+    def merge(self, i: int, j: int) -> None:
+        # GroupAndRewire: w = u + v; mean linkage follows from summing rows/cols
+        assert i < j
+        self.members[i] = sorted(self.members[i] + self.members[j])
+        del self.members[j]
+        for name in ("sum_spat", "sum_sem"):
+            s = getattr(self, name)
+            s[i] += s[j]
+            s[:, i] += s[:, j]
+            s = np.delete(np.delete(s, j, 0), j, 1)
+            setattr(self, name, s)
+        self.size[i] += self.size[j]
+        self.size = np.delete(self.size, j)
+        self.views[i] |= self.views[j]
+        self.views = np.delete(self.views, j, 0)
+
+
+def group_nodes(
+    groups: list[list[int]],
+    sim: SimilarityGraph,
+    view: np.ndarray,
+    n_views: int,
+    cfg: GroupingConfig,
+    round_: int = 0,
+) -> tuple[list[list[int]], list[MergeStep]]:
+    """GroupBySimilarity (Algorithm 1): stage 1 on S_spatial, then stage 2 on S_semantic.
+
+    ``groups`` is the starting partition (node index lists); returns the final
+    partition (sorted by first member) and the merges in order.
+    """
+    state = _Groups(groups, sim.s_spatial, sim.s_semantic, view, n_views)
+    steps: list[MergeStep] = []
+    stages = []
+    if cfg.use_spatial:
+        stages.append((STAGE_SPATIAL, cfg.tau_spat))
+    if cfg.use_semantic:
+        stages.append((STAGE_SEMANTIC, cfg.tau_sem))
+    for stage, tau in stages:
+        while len(state.members) > 1:
+            valid = state.valid(cfg.one_mask_per_view)
+            score = np.where(valid, state.mean(stage), -np.inf)
+            flat = int(np.argmax(score))  # first maximum in canonical order
+            best = score.flat[flat]
+            if not np.isfinite(best) or best < tau:
+                break
+            i, j = divmod(flat, score.shape[1])
+            steps.append(
+                MergeStep(
+                    stage=STAGE_NAMES[stage],
+                    round=round_,
+                    a=tuple(state.members[i]),
+                    b=tuple(state.members[j]),
+                    score=float(best),
+                    spatial=float(state.mean(STAGE_SPATIAL)[i, j]),
+                    semantic=float(state.mean(STAGE_SEMANTIC)[i, j]),
+                )
+            )
+            state.merge(i, j)
+    return state.members, steps
+
+
+def substitute_residuals(
+    groups: list[list[int]], nodes: NodeTable, round_: int
+) -> tuple[list[list[int]], list[Substitution]]:
+    """Residual-node parent substitution (Sec. III-B.3).
+
+    A residual is a node left alone in its group. A residual is replaced by its tree
+    parent only when every leaf below that parent is residual (so at most one proper
+    segment stays on each root-to-leaf path); all of those residual leaves make way
+    for the one parent node. Background parents are never substituted in.
+    """
+    residual = {g[0] for g in groups if len(g) == 1}
+    desc = nodes.descendant_leaves()
+    subs: list[Substitution] = []
+    used_parents: set[int] = set()
+    replaced: set[int] = set()
+    for r in sorted(residual):
+        p = int(nodes.parent[r])
+        if p < 0 or p in used_parents or nodes.background[p]:
+            continue
+        below = [int(x) for x in desc[p] if not nodes.background[x]]
+        # the leaves under p may themselves have been substituted in an earlier round: then
+        # the node standing for them is the residual one (its subtree root), checked via membership
+        if below and all(x in residual or _stands_in(x, residual, nodes) for x in below):
+            gone = tuple(sorted(x for x in residual if _in_subtree(x, p, nodes)))
+            subs.append(Substitution(round=round_, parent=p, replaced=gone))
+            used_parents.add(p)
+            replaced.update(gone)
+    if not subs:
+        return groups, subs
+    new = [g for g in groups if not (len(g) == 1 and g[0] in replaced)]
+    new += [[s.parent] for s in subs]
+    new.sort(key=lambda g: g[0])
+    return new, subs
+
+
+def _in_subtree(x: int, root: int, nodes: NodeTable) -> bool:
+    j = x
+    while j >= 0:
+        if j == root:
+            return True
+        j = int(nodes.parent[j])
+    return False
+
+
+def _stands_in(leaf: int, residual: set[int], nodes: NodeTable) -> bool:
+    """True if an ancestor of ``leaf`` (from an earlier substitution) is a residual node."""
+    j = int(nodes.parent[leaf])
+    while j >= 0:
+        if j in residual:
+            return True
+        j = int(nodes.parent[j])
+    return False
+
+
+def run_grouping(nodes: NodeTable, sim: SimilarityGraph, n_views: int, cfg: GroupingConfig) -> GroupingResult:
+    """Algorithm 1 plus substitution and regrouping. Background nodes never take part."""
+    start = [[int(i)] for i in np.flatnonzero(nodes.is_leaf & ~nodes.background)]
+    groups, merges = group_nodes(start, sim, nodes.view, n_views, cfg, round_=0)
+    events: list[tuple[str, int]] = [("merge", i) for i in range(len(merges))]
+    subs_all: list[Substitution] = []
+    if cfg.substitution:
+        for rnd in range(1, cfg.substitution_rounds + 1):
+            groups, subs = substitute_residuals(groups, nodes, rnd)
+            if not subs:
+                break
+            events += [("substitution", len(subs_all) + k) for k in range(len(subs))]
+            subs_all += subs
+            groups, more = group_nodes(groups, sim, nodes.view, n_views, cfg, round_=rnd)
+            events += [("merge", len(merges) + k) for k in range(len(more))]
+            merges += more
+    return GroupingResult(
+        groups=tuple(tuple(g) for g in groups),
+        merges=tuple(merges),
+        substitutions=tuple(subs_all),
+        events=tuple(events),
+    )

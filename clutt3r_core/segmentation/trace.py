@@ -1,0 +1,193 @@
+"""The trace of a segmentation run: every intermediate, for the viewer, rerun and tests.
+
+Serialised compactly as ``trace.npz`` (arrays) + ``trace.json`` (steps, timings,
+config); ``load_trace`` reads back an equal object.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from clutt3r_core.errors import SceneFileError
+from clutt3r_core.io.images import atomic_write_bytes
+from clutt3r_core.segmentation.grouping import GroupingResult, MergeStep, NodeTable, Substitution
+from clutt3r_core.segmentation.trees import InstanceTree
+from clutt3r_core.segmentation.vote import VoteResult
+
+__all__ = ["StageTiming", "Trace", "save_trace", "load_trace", "TRACE_VERSION"]
+
+TRACE_VERSION = 1
+
+
+@dataclass(frozen=True)
+class StageTiming:
+    stage: str
+    seconds: float
+
+
+@dataclass(frozen=True, eq=False)
+class Trace:
+    """Everything the pipeline computed on the way to the instances.
+
+    Attributes:
+        frames: (V,) int32 frames of the initial views, in order.
+        trees: per-view containment forests (Sec. III-B.1).
+        nodes: all tree nodes in canonical order; leaves are the grouping's start.
+        embeddings: (U, D) float32 unit embeddings of every node; ``embedder`` names the backend.
+        occupancy: (U, K) float32 o_i(k) of every node over super-voxels (eq. 2).
+        s_spatial, s_semantic: (U, U) float32 leaf-graph edge weights, NaN = no edge.
+        grouping: merges in order, substitutions, final groups (Algorithm 1, Sec. III-B.3).
+        vote: per-super-voxel votes and the instances (Sec. III-B.4).
+        timings: seconds per stage.
+        embedder: name of the embedding backend used for S_semantic.
+        config: the SegmentConfig as JSON-able data.
+    """
+
+    frames: np.ndarray
+    trees: tuple[InstanceTree, ...]
+    nodes: NodeTable
+    embeddings: np.ndarray
+    occupancy: np.ndarray
+    s_spatial: np.ndarray
+    s_semantic: np.ndarray
+    grouping: GroupingResult
+    vote: VoteResult
+    timings: tuple[StageTiming, ...]
+    embedder: str
+    config: dict
+
+    def timing(self, stage: str) -> float:
+        return sum(t.seconds for t in self.timings if t.stage == stage)
+
+    def groups_at(self, n_events: int) -> list[tuple[int, ...]]:
+        """The groups after the first ``n_events`` events (merges and substitutions, in order).
+
+        ``groups_at(0)`` is every non-background leaf alone; ``groups_at(len(events))``
+        equals ``grouping.groups``.
+        """
+        nodes = self.nodes
+        groups = {(int(i),) for i in np.flatnonzero(nodes.is_leaf & ~nodes.background)}
+        for kind, idx in self.grouping.events[:n_events]:
+            if kind == "merge":
+                m = self.grouping.merges[idx]
+                groups.discard(m.a)
+                groups.discard(m.b)
+                groups.add(tuple(sorted(m.a + m.b)))
+            else:
+                s = self.grouping.substitutions[idx]
+                for r in s.replaced:
+                    groups.discard((r,))
+                groups.add((s.parent,))
+        return sorted(groups, key=lambda g: g[0])
+
+
+def _tree_to_json(t: InstanceTree) -> dict:
+    return {
+        "frame": t.frame,
+        "mask_ids": t.mask_ids.tolist(),
+        "parent": t.parent.tolist(),
+        "areas": t.areas.tolist(),
+        "dropped_ids": t.dropped_ids.tolist(),
+    }
+
+
+def _tree_from_json(d: dict) -> InstanceTree:
+    return InstanceTree(
+        frame=int(d["frame"]),
+        mask_ids=np.asarray(d["mask_ids"], np.int32),
+        parent=np.asarray(d["parent"], np.int32),
+        areas=np.asarray(d["areas"], np.int64),
+        dropped_ids=np.asarray(d["dropped_ids"], np.int32),
+    )
+
+
+def save_trace(trace: Trace, folder: str | Path) -> Path:
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    n, v = trace.nodes, trace.vote
+    occ = trace.occupancy
+    rows, cols = np.nonzero(occ)
+    arrays = {
+        "frames": trace.frames,
+        "node_frame": n.frame, "node_view": n.view, "node_mask_id": n.mask_id, "node_parent": n.parent,
+        "node_is_leaf": n.is_leaf, "node_background": n.background,
+        "embeddings": trace.embeddings.astype(np.float16),
+        "occ_shape": np.asarray(occ.shape, np.int64),
+        "occ_rows": rows.astype(np.int32), "occ_cols": cols.astype(np.int32),
+        "occ_vals": occ[rows, cols].astype(np.float32),
+        "s_spatial": trace.s_spatial.astype(np.float32), "s_semantic": trace.s_semantic.astype(np.float32),
+        "sv_label": v.sv_label, "sv_group": v.sv_group, "sv_vote": v.sv_vote,
+        "sv_runner_up": v.sv_runner_up, "sv_coverage": v.sv_coverage,
+        "instance_group": v.instance_group, "scores": v.scores,
+    }
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **arrays)
+    atomic_write_bytes(folder / "trace.npz", buf.getvalue())
+    g = trace.grouping
+    meta = {
+        "version": TRACE_VERSION,
+        "embedder": trace.embedder,
+        "trees": [_tree_to_json(t) for t in trace.trees],
+        "groups": [list(x) for x in g.groups],
+        "merges": [asdict(m) for m in g.merges],
+        "substitutions": [asdict(s) for s in g.substitutions],
+        "events": [list(e) for e in g.events],
+        "timings": [asdict(t) for t in trace.timings],
+        "config": trace.config,
+    }
+    atomic_write_bytes(folder / "trace.json", json.dumps(meta, indent=1).encode())
+    return folder
+
+
+def load_trace(folder: str | Path) -> Trace:
+    folder = Path(folder)
+    jpath, npath = folder / "trace.json", folder / "trace.npz"
+    for p in (jpath, npath):
+        if not p.is_file():
+            raise SceneFileError(p, "missing: not a saved trace")
+    try:
+        meta = json.loads(jpath.read_text())
+    except json.JSONDecodeError as e:
+        raise SceneFileError(jpath, f"not valid JSON ({e.msg})") from None
+    if meta.get("version") != TRACE_VERSION:
+        raise SceneFileError(jpath, f"trace version {meta.get('version')} is not {TRACE_VERSION}")
+    try:
+        z = dict(np.load(npath))
+    except (OSError, ValueError) as e:
+        raise SceneFileError(npath, f"unreadable: {e}") from None
+    occ = np.zeros(tuple(z["occ_shape"]), np.float32)
+    occ[z["occ_rows"], z["occ_cols"]] = z["occ_vals"]
+    nodes = NodeTable(
+        frame=z["node_frame"], view=z["node_view"], mask_id=z["node_mask_id"], parent=z["node_parent"],
+        is_leaf=z["node_is_leaf"], background=z["node_background"],
+    )
+    tup = lambda xs: tuple(int(x) for x in xs)  # noqa: E731
+    grouping = GroupingResult(
+        groups=tuple(tup(x) for x in meta["groups"]),
+        merges=tuple(MergeStep(**{**m, "a": tup(m["a"]), "b": tup(m["b"])}) for m in meta["merges"]),
+        substitutions=tuple(Substitution(**{**s, "replaced": tup(s["replaced"])}) for s in meta["substitutions"]),
+        events=tuple((str(k), int(i)) for k, i in meta["events"]),
+    )
+    vote = VoteResult(
+        sv_label=z["sv_label"], sv_group=z["sv_group"], sv_vote=z["sv_vote"], sv_runner_up=z["sv_runner_up"],
+        sv_coverage=z["sv_coverage"], instance_group=z["instance_group"], scores=z["scores"],
+    )
+    return Trace(
+        frames=z["frames"],
+        trees=tuple(_tree_from_json(t) for t in meta["trees"]),
+        nodes=nodes,
+        embeddings=z["embeddings"].astype(np.float32),
+        occupancy=occ,
+        s_spatial=z["s_spatial"],
+        s_semantic=z["s_semantic"],
+        grouping=grouping,
+        vote=vote,
+        timings=tuple(StageTiming(**t) for t in meta["timings"]),
+        embedder=meta["embedder"],
+        config=meta["config"],
+    )

@@ -1,0 +1,186 @@
+"""Hand-built grouping cases: nodes with known occupancy over a few super-voxels."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from clutt3r_core.segmentation.grouping import (
+    GroupingConfig,
+    NodeTable,
+    SimilarityGraph,
+    run_grouping,
+    semantic_similarity,
+    spatial_similarity,
+)
+from clutt3r_core.segmentation.vote import VoteConfig, supervoxel_vote
+
+K = 12  # super-voxels: object X = 0..3, object Y = 4..9, object Z = 10..11 (unused by some cases)
+X = list(range(0, 4))
+Y = list(range(4, 10))
+
+
+def occ(*svs):
+    o = np.zeros(K, np.float32)
+    o[list(svs)] = 1.0
+    return o
+
+
+def build(spec, emb=None):
+    """spec: list of (frame, mask_id, parent_mask_id or None, occupancy row)."""
+    spec = sorted(spec, key=lambda s: (s[0], s[1]))
+    frames = sorted({s[0] for s in spec})
+    index = {(s[0], s[1]): i for i, s in enumerate(spec)}
+    parent = np.array([index[(s[0], s[2])] if s[2] is not None else -1 for s in spec], np.int32)
+    has_child = np.zeros(len(spec), bool)
+    has_child[parent[parent >= 0]] = True
+    nodes = NodeTable(
+        frame=np.array([s[0] for s in spec], np.int32),
+        view=np.array([frames.index(s[0]) for s in spec], np.int32),
+        mask_id=np.array([s[1] for s in spec], np.int32),
+        parent=parent,
+        is_leaf=~has_child,
+        background=np.zeros(len(spec), bool),
+    )
+    O = np.stack([s[3] for s in spec])
+    s_spat = spatial_similarity(O, np.full(K, 1.0 / K))
+    if emb is None:
+        emb = np.eye(len(spec), 8, dtype=np.float32) if len(spec) <= 8 else np.eye(len(spec), dtype=np.float32)
+    s_sem = semantic_similarity(emb)
+    same = nodes.view[:, None] == nodes.view[None, :]
+    s_spat[same] = np.nan
+    s_sem[same] = np.nan
+    return nodes, SimilarityGraph(s_spat, s_sem), O, index, len(frames)
+
+
+def as_keys(result, nodes):
+    return sorted(tuple(sorted(nodes.key(i) for i in g)) for g in result.groups)
+
+
+def test_spatial_similarity_is_weighted_jaccard():
+    O = np.array([[1.0, 0.5, 0.0], [0.5, 0.5, 1.0]], np.float32)
+    w = np.array([0.2, 0.3, 0.5], np.float32)
+    s = spatial_similarity(O, w)
+    expect = (0.2 * 0.5 + 0.3 * 0.5) / (0.2 * 1.0 + 0.3 * 0.5 + 0.5 * 1.0)
+    assert s[0, 1] == pytest.approx(expect, rel=1e-5)
+    assert s[0, 0] == pytest.approx(1.0)
+
+
+def test_parent_with_two_children_across_three_views():
+    spec = [
+        (0, 1, None, occ(*X, *Y)),  # under-segmented union: parent
+        (0, 2, 1, occ(*X)),
+        (0, 3, 1, occ(*Y)),
+        (1, 1, None, occ(*X)),
+        (1, 2, None, occ(*Y)),
+        (2, 5, None, occ(*X[:3])),
+        (2, 6, None, occ(*Y)),
+    ]
+    nodes, sim, O, idx, V = build(spec)
+    res = run_grouping(nodes, sim, V, GroupingConfig())
+    assert as_keys(res, nodes) == [((0, 2), (1, 1), (2, 5)), ((0, 3), (1, 2), (2, 6))]
+    assert all(m.stage == "spatial" for m in res.merges) and len(res.merges) == 4
+    assert res.substitutions == ()
+    # merge scores never increase within stage 1 here, and each is >= tau_spat
+    assert all(m.score >= 0.5 for m in res.merges)
+
+
+def test_under_segmentation_in_one_view_only_stays_out_and_loses_the_vote():
+    Yb = list(range(4, 12))  # Y bigger than X, so the union's Jaccard with X is 4/12 and with Y 8/12
+    spec = [
+        (0, 1, None, occ(*X, *Yb)),  # the only mask of view 0: under-segmented
+        (1, 1, None, occ(*X)),
+        (1, 2, None, occ(*Yb)),
+        (2, 1, None, occ(*X)),
+        (2, 2, None, occ(*Yb)),
+    ]
+    nodes, sim, O, idx, V = build(spec)
+    res = run_grouping(nodes, sim, V, GroupingConfig())
+    groups = as_keys(res, nodes)
+    # Y's group absorbs the union (mean linkage 8/12 >= 0.5) or not; X's group never does, and
+    # two masks of view 1 or 2 never share a group
+    x_group = [g for g in groups if (1, 1) in g][0]
+    assert (0, 1) not in x_group and (1, 2) not in x_group and (2, 2) not in x_group
+    vote = supervoxel_vote(res.groups, O, np.full(K, 10), np.zeros(K, bool), sim.s_spatial, V, VoteConfig())
+    inst_of_sv = vote.sv_label
+    # X's super-voxels all go to one instance and Y's to another
+    assert len(set(inst_of_sv[X].tolist())) == 1 and len(set(inst_of_sv[Yb].tolist())) == 1
+    assert inst_of_sv[X[0]] != inst_of_sv[Yb[0]] and inst_of_sv[X[0]] >= 0
+
+
+def test_over_segmented_object_is_grouped_only_after_substitution():
+    # object Y seen whole in view 0 only as parent of two halves split left/right, in view 1
+    # split top/bottom: halves of different views overlap by 2/6 (< tau_spat), so stage 1 fails
+    spec = [
+        (0, 1, None, occ(*range(4, 12))),
+        (0, 2, 1, occ(4, 5, 6, 7)),
+        (0, 3, 1, occ(8, 9, 10, 11)),
+        (1, 1, None, occ(*range(4, 12))),
+        (1, 2, 1, occ(4, 5, 8, 9)),
+        (1, 3, 1, occ(6, 7, 10, 11)),
+    ]
+    nodes, sim, O, idx, V = build(spec)
+    without = run_grouping(nodes, sim, V, GroupingConfig(substitution=False))
+    assert all(len(g) == 1 for g in without.groups)
+    res = run_grouping(nodes, sim, V, GroupingConfig())
+    assert as_keys(res, nodes) == [((0, 1), (1, 1))]
+    assert len(res.substitutions) == 2
+    assert {nodes.key(s.parent) for s in res.substitutions} == {(0, 1), (1, 1)}
+    kinds = [k for k, _ in res.events]
+    assert kinds == ["substitution", "substitution", "merge"]
+
+
+def test_substitution_needs_all_siblings_residual():
+    # the parent's other child is grouped, so the residual child is not substituted
+    spec = [
+        (0, 1, None, occ(*X, *Y)),
+        (0, 2, 1, occ(*X)),
+        (0, 3, 1, occ(10)),  # speck: residual
+        (1, 1, None, occ(*X)),
+    ]
+    nodes, sim, O, idx, V = build(spec)
+    res = run_grouping(nodes, sim, V, GroupingConfig())
+    assert res.substitutions == ()
+    assert ((0, 2), (1, 1)) in as_keys(res, nodes)
+
+
+def test_identical_masks_never_share_a_group():
+    spec = [
+        (0, 1, None, occ(*X)),
+        (0, 2, None, occ(*X)),  # duplicate in the same view
+        (1, 1, None, occ(*X)),
+        (2, 1, None, occ(*X)),
+    ]
+    nodes, sim, O, idx, V = build(spec)
+    res = run_grouping(nodes, sim, V, GroupingConfig())
+    for g in res.groups:
+        views = nodes.view[list(g)]
+        assert len(set(views.tolist())) == len(views)
+    sizes = sorted(len(g) for g in res.groups)
+    assert sizes == [1, 3]
+    # ties go to the first pair in canonical order: (0, 1) is the one grouped
+    assert ((0, 1), (1, 1), (2, 1)) in as_keys(res, nodes)
+
+
+def test_semantic_stage_merges_whole_groups():
+    # two halves of an object seen from opposite sides share no super-voxel but look alike
+    spec = [
+        (0, 1, None, occ(0, 1)),
+        (1, 1, None, occ(0, 1)),
+        (2, 1, None, occ(2, 3)),
+        (3, 1, None, occ(2, 3)),
+    ]
+    emb = np.tile(np.array([[1.0, 0.0]], np.float32), (4, 1))
+    nodes, sim, O, idx, V = build(spec, emb=emb)
+    res = run_grouping(nodes, sim, V, GroupingConfig())
+    assert as_keys(res, nodes) == [((0, 1), (1, 1), (2, 1), (3, 1))]
+    assert [m.stage for m in res.merges] == ["spatial", "spatial", "semantic"]
+    no_sem = run_grouping(nodes, sim, V, GroupingConfig(use_semantic=False))
+    assert len(no_sem.groups) == 2
+
+
+def test_empty_input():
+    nodes = NodeTable(*(np.zeros(0, np.int32) for _ in range(4)), np.zeros(0, bool), np.zeros(0, bool))
+    sim = SimilarityGraph(np.zeros((0, 0), np.float32), np.zeros((0, 0), np.float32))
+    res = run_grouping(nodes, sim, 0, GroupingConfig())
+    assert res.groups == () and res.merges == ()
