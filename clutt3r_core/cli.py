@@ -19,7 +19,6 @@ _CORE_COMMANDS: dict[str, str] = {
     "synth": "clutt3r_core.synth.cli:synth_command",
     "segment": "clutt3r_core.pipeline:segment_command",
     "bench": "clutt3r_core.evaluation.runner:bench_command",
-    "demo": "clutt3r_core.demo:demo_command",
 }
 
 
@@ -27,8 +26,10 @@ def _load(target: str) -> Callable | None:
     module, _, attr = target.partition(":")
     try:
         return getattr(importlib.import_module(module), attr)
-    except (ImportError, AttributeError):
-        return None
+    except ModuleNotFoundError as e:
+        if e.name and module.startswith(e.name):
+            return None  # that command's module is not part of this installation
+        raise
 
 
 def available_commands() -> dict[str, Callable]:
