@@ -37,7 +37,7 @@ from clutt3r_core.io.images import read_depth_mm, read_mask, read_rgb
 from clutt3r_core.io.sample_layout import _read_json, _scan_masks
 from clutt3r_core.scene import Camera, GroundTruth, MaskCandidates, ObjectInfo, Scene, View, check_rigid
 
-__all__ = ["load_bop_scene", "is_bop_scene", "GT_POINT_VOXEL_M"]
+__all__ = ["load_bop_scene", "is_bop_scene", "paint_instances", "voxel_labelled_points", "GT_POINT_VOXEL_M"]
 
 # ours: labelled GT points are back-projected from every pixel of every initial view
 # (millions at 1920x1080); one point per 2 mm voxel keeps the cloud small while staying
@@ -114,7 +114,7 @@ def paint_instances(masks: np.ndarray) -> np.ndarray:
     masks = np.asarray(masks, dtype=bool)
     K = masks.shape[0]
     out = np.full(masks.shape[1:], -1, np.int32)
-    areas = masks.reshape(K, -1).sum(axis=1)
+    areas = masks.sum(axis=(1, 2))
     for k in np.lexsort((np.arange(K), -areas)):  # area descending, then index ascending
         out[masks[k]] = k
     return out
