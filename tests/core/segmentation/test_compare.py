@@ -1,0 +1,35 @@
+from __future__ import annotations
+
+import pytest
+
+from clutt3r_core.segmentation.compare import leaf_pair_agreement
+
+
+def tree(entries):
+    return {"schema_version": 1, "initial": {"initial_idx": [0, 1], "leaf2inst": [
+        {"frame": f, "mask": m, "instance": i} for f, m, i in entries]}}
+
+
+def test_identical_groupings_agree_fully_whatever_the_ids():
+    a = tree([(0, 1, 0), (0, 2, 1), (1, 1, 0), (1, 2, 1)])
+    b = tree([(0, 1, 7), (0, 2, 3), (1, 1, 7), (1, 2, 3)])
+    r = leaf_pair_agreement(a, b)
+    assert (r.precision, r.recall, r.f1) == (1.0, 1.0, 1.0)
+    assert r.n_common == 4 and r.n_pairs_both == 2
+
+
+def test_merged_pair_halves_precision_and_uncommon_leaves_are_ignored():
+    ours = tree([(0, 1, 0), (0, 2, 0), (1, 1, 0), (1, 2, 0), (1, 9, 0)])
+    ref = tree([(0, 1, 0), (0, 2, 1), (1, 1, 0), (1, 2, 1), (0, 5, 2)])
+    r = leaf_pair_agreement(ours, ref)
+    # common leaves: 4; ours says all 6 pairs are same, ref says 2
+    assert r.n_common == 4 and r.n_ours == 5 and r.n_reference == 5
+    assert r.precision == pytest.approx(2 / 6) and r.recall == 1.0
+    assert r.f1 == pytest.approx(2 * (1 / 3) / (1 / 3 + 1))
+
+
+def test_unassigned_leaves_are_never_same():
+    a = tree([(0, 1, -1), (1, 1, -1)])
+    b = tree([(0, 1, 0), (1, 1, 0)])
+    r = leaf_pair_agreement(a, b)
+    assert r.n_pairs_ours == 0 and r.recall == 0.0 and r.f1 == 0.0
