@@ -58,9 +58,13 @@ def _read_json(path: Path) -> object:
     if not path.is_file():
         raise SceneFileError(path, "file not found")
     try:
-        return json.loads(path.read_text())
+        return json.loads(path.read_text(encoding="utf-8"))
     except json.JSONDecodeError as e:
         raise SceneFileError(path, f"not valid JSON ({e.msg} at line {e.lineno})") from None
+    except UnicodeDecodeError:
+        raise SceneFileError(path, "not valid JSON (not UTF-8 text)") from None
+    except OSError as e:
+        raise SceneFileError(path, f"cannot be read ({e.strerror or e})") from None
 
 
 def _frame_index(file_path: str, position: int) -> int:

@@ -101,6 +101,12 @@ def test_invalid_json(scene_dir):
     assert e.path.name == "transforms.json" and "not valid JSON" in str(e)
 
 
+def test_binary_garbage_json(scene_dir):
+    (scene_dir / "transforms.json").write_bytes(b"\x89PNG\r\n\x1a\n\xff\xfe")
+    e = _load_error(scene_dir)
+    assert e.path.name == "transforms.json" and "not valid JSON" in str(e)
+
+
 def test_transforms_without_frames(scene_dir):
     (scene_dir / "transforms.json").write_text('{"fl_x": 30}')
     e = _load_error(scene_dir)
@@ -379,3 +385,34 @@ def test_bop_truncated_mask(tmp_path):
     _truncate(root / "mask_visib" / "000001_000000.png")
     e = _bop_error(root)
     assert e.path.name == "000001_000000.png" and "corrupt or truncated" in str(e)
+
+
+def test_bop_missing_depth_of_initial_image(tmp_path):
+    root = _write_bop(tmp_path / "000001")
+    (root / "depth" / "000000.png").unlink()
+    e = _bop_error(root)
+    assert e.path.name == "000000.png" and "initial image 0 has no depth file" in str(e)
+
+
+def test_bop_gt_instances_differ_between_images(tmp_path):
+    root = _write_bop(tmp_path / "000001")
+    inst = {"obj_id": 3, "cam_R_m2c": np.eye(3).reshape(-1).tolist(), "cam_t_m2c": [0, 0, 500]}
+    (root / "scene_gt.json").write_text(json.dumps({"0": [inst], "1": [dict(inst, obj_id=4)]}))
+    e = _bop_error(root)
+    assert e.path.name == "scene_gt.json" and "image 1 lists objects [4] but image 0 lists [3]" in str(e)
+
+
+def test_bop_missing_visible_mask(tmp_path):
+    root = _write_bop(tmp_path / "000001")
+    inst = {"obj_id": 3, "cam_R_m2c": np.eye(3).reshape(-1).tolist(), "cam_t_m2c": [0, 0, 500]}
+    (root / "scene_gt.json").write_text(json.dumps({"0": [inst], "1": [inst]}))
+    write_png(root / "mask_visib" / "000000_000000.png", np.ones((H, W), bool))
+    e = _bop_error(root)
+    assert e.path.name == "000001_000000.png" and "file not found" in str(e)
+
+
+def test_load_scene_detects_sample_layout(tmp_path):
+    root = write_sample_layout(_tiny_scene(), tmp_path / "sample_x" / "data")
+    for p in (root, root / "transforms.json", root.parent):  # folder, camera file, release folder
+        s = load_scene(p)
+        assert [v.frame for v in s.views] == [0, 1, 2] and s.root == root
