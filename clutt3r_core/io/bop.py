@@ -130,22 +130,25 @@ def voxel_labelled_points(points: np.ndarray, labels: np.ndarray, voxel: float) 
     labels = np.asarray(labels, dtype=np.int64).reshape(-1)
     if len(points) == 0:
         return np.zeros((0, 3), np.float32), np.zeros((0,), np.int32)
+    if labels.min() < -1:
+        raise SceneError(f"point labels must be >= -1, got {int(labels.min())}")
     q = np.floor(points / voxel).astype(np.int64)
     q -= q.min(axis=0)
     dims = q.max(axis=0) + 1
     key = (q[:, 0] * dims[1] + q[:, 1]) * dims[2] + q[:, 2]
-    _, vox = np.unique(key, return_inverse=True)
-    n = int(vox.max()) + 1
-    count = np.bincount(vox, minlength=n)
-    centroid = np.stack([np.bincount(vox, weights=points[:, i], minlength=n) for i in range(3)], axis=1)
-    centroid /= count[:, None]
-    # majority label: count (voxel, label) pairs, then take each voxel's most frequent pair
+    # one sort of (voxel, label) pair keys serves both the centroids and the majority vote;
+    # sorted pair keys are grouped by voxel, labels ascending inside a group
     L = int(labels.max()) + 2
-    pairs, pair_count = np.unique(vox * L + (labels + 1), return_counts=True)
+    pairs, inv, count = np.unique(key * L + (labels + 1), return_inverse=True, return_counts=True)
+    sums = np.stack([np.bincount(inv, weights=points[:, i], minlength=len(pairs)) for i in range(3)], axis=1)
     pair_vox, pair_label = pairs // L, pairs % L - 1
-    order = np.lexsort((-pair_count, pair_vox))
-    first = np.unique(pair_vox[order], return_index=True)[1]
-    return centroid.astype(np.float32), pair_label[order][first].astype(np.int32)
+    starts = np.flatnonzero(np.r_[True, pair_vox[1:] != pair_vox[:-1]])
+    centroid = np.add.reduceat(sums, starts, axis=0) / np.add.reduceat(count, starts)[:, None]
+    # per voxel the pair with the highest count; stable sort keeps the smaller label on ties
+    group = np.repeat(np.arange(len(starts)), np.diff(np.r_[starts, len(pairs)]))
+    order = np.lexsort((-count, group))
+    first = order[np.r_[0, np.flatnonzero(np.diff(group[order])) + 1]]
+    return centroid.astype(np.float32), pair_label[first].astype(np.int32)
 
 
 def load_bop_scene(

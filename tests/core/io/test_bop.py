@@ -10,6 +10,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
 
 from clutt3r_core.io import load_bop_scene, load_scene
 from clutt3r_core.io.bop import paint_instances, voxel_labelled_points
@@ -293,3 +296,41 @@ def test_voxel_subsampling_majority_label_and_centroid():
     assert lab[order].tolist() == [2, 0]
     p, lab = voxel_labelled_points(np.zeros((0, 3)), np.zeros(0, int), 0.002)
     assert p.shape == (0, 3) and lab.shape == (0,)
+
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    hnp.arrays(np.int64, st.tuples(st.integers(1, 40), st.just(3)), elements=st.integers(-6, 6)),
+    st.data(),
+)
+def test_voxel_subsampling_matches_brute_force(cells, data):
+    # points at cell centres +- a little, so the voxel of every point is unambiguous
+    voxel = 0.002
+    jitter = data.draw(hnp.arrays(np.float64, cells.shape, elements=st.floats(-0.4, 0.4)))
+    pts = (cells + 0.5 + jitter) * voxel
+    labs = data.draw(hnp.arrays(np.int64, len(cells), elements=st.integers(-1, 3)))
+    p, lab = voxel_labelled_points(pts, labs, voxel)
+    groups: dict[tuple, list[int]] = {}
+    for i, c in enumerate(map(tuple, cells)):
+        groups.setdefault(c, []).append(i)
+    assert len(p) == len(groups)
+    got = {tuple(np.floor(q / voxel).astype(int)): (q, l) for q, l in zip(p.astype(np.float64), lab)}
+    for c, idx in groups.items():
+        q, l = got[c]
+        np.testing.assert_allclose(q, pts[idx].mean(axis=0), atol=1e-7)
+        values, counts = np.unique(labs[idx], return_counts=True)
+        assert l == values[np.argmax(counts)]  # most frequent, smaller label on ties
+
+
+@settings(max_examples=60, deadline=None)
+@given(hnp.arrays(bool, st.tuples(st.integers(0, 5), st.integers(1, 6), st.integers(1, 6))))
+def test_paint_instances_picks_smallest_covering_mask(masks):
+    m = paint_instances(masks)
+    areas = masks.sum(axis=(1, 2))
+    covered = masks.any(axis=0)
+    assert (m[~covered] == -1).all()
+    for v, u in zip(*np.nonzero(covered)):
+        cover = np.flatnonzero(masks[:, v, u])
+        best = cover[areas[cover] == areas[cover].min()].max()
+        assert m[v, u] == best
