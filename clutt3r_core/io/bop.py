@@ -193,16 +193,18 @@ def load_bop_scene(
     if not cams:
         raise SceneFileError(cpath, "lists no images")
 
+    # materialise once: the arguments may be one-shot iterators
     post_ids = [int(f) for f in post] if post is not None else []
+    initial_given = [int(f) for f in initial] if initial is not None else None
     if frames is not None:
         frame_ids = sorted({int(f) for f in frames})
-    elif initial is not None or post is not None:
-        frame_ids = sorted(set(int(f) for f in (initial or [])) | set(post_ids))
+    elif initial_given is not None or post is not None:
+        frame_ids = sorted(set(initial_given or []) | set(post_ids))
     else:
         frame_ids = sorted(cams)
     if not frame_ids:
         raise SceneError(f"{root}: no images selected")
-    initial_ids = [int(f) for f in initial] if initial is not None else [f for f in frame_ids if f not in post_ids]
+    initial_ids = initial_given if initial_given is not None else [f for f in frame_ids if f not in post_ids]
     missing = sorted(set(frame_ids) - set(cams))
     if missing:
         raise SceneFileError(cpath, f"images {missing} were requested but have no entry here")

@@ -222,6 +222,8 @@ def test_frame_selection_initial_and_post(bop):
     scene = load_bop_scene(root, initial=[0, 2], post=[1])
     assert [v.frame for v in scene.views] == [0, 1, 2]
     assert [v.frame for v in scene.initial_views] == [0, 2] and [v.frame for v in scene.post_views] == [1]
+    gen = load_bop_scene(root, initial=(f for f in [0, 2]), post=iter([1]))  # one-shot iterators
+    assert [v.frame for v in gen.initial_views] == [0, 2] and [v.frame for v in gen.post_views] == [1]
     only = load_bop_scene(root, frames=[2])
     assert [v.frame for v in only.views] == [2] and only.initial == (0,)
     # objects come from the first loaded image; poses are in the world frame, so the same
