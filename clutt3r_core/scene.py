@@ -43,7 +43,10 @@ def check_rigid(T: np.ndarray, what: str) -> np.ndarray:
         raise SceneError(f"{what}: last row of the transform must be [0, 0, 0, 1], got {T[3].tolist()}")
     R = T[:3, :3]
     err = np.abs(R.T @ R - np.eye(3)).max()
-    if err > _RIGID_TOL or np.linalg.det(R) < 0:
+    det = np.linalg.det(R)
+    if err <= _RIGID_TOL and det < 0:
+        raise SceneError(f"{what}: transform is not rigid: it is a reflection (det {det:.3g}); mirrored poses are not supported")
+    if err > _RIGID_TOL:
         raise SceneError(
             f"{what}: transform is not rigid (rotation not orthonormal, max |R^T R - I| = {err:.3g},"
             f" det = {np.linalg.det(R):.3g}); scaled or sheared poses are not supported"
