@@ -104,6 +104,8 @@ class FusedCloud:
         stride: pixel stride used for each view (ours; 1 = every pixel).
         visibility: (V, N) bool, voxel n was fed by at least one pixel of view v; derived
             from ``pixel_voxel`` when not given.
+        camera_centres: (V, 3) float64 world position of each fused view's camera, metres,
+            or None when unknown (ours: lets later stages orient things towards the cameras).
     """
 
     points: np.ndarray
@@ -115,6 +117,7 @@ class FusedCloud:
     pixel_voxel: tuple[np.ndarray, ...]
     stride: tuple[int, ...] = ()
     visibility: np.ndarray | None = field(default=None, repr=False)
+    camera_centres: np.ndarray | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         pts = np.asarray(self.points, dtype=np.float32)
@@ -153,6 +156,11 @@ class FusedCloud:
             vis = np.asarray(vis, dtype=bool)
             if vis.shape != (len(pv), n):
                 raise SceneError(f"FusedCloud.visibility must be ({len(pv)}, {n}), got {vis.shape}")
+        if self.camera_centres is not None:
+            cc = np.asarray(self.camera_centres, dtype=np.float64)
+            if cc.shape != (len(pv), 3):
+                raise SceneError(f"FusedCloud.camera_centres must be ({len(pv)}, 3), got {cc.shape}")
+            object.__setattr__(self, "camera_centres", _readonly(cc))
         object.__setattr__(self, "points", _readonly(pts))
         object.__setattr__(self, "colors", _readonly(cols))
         object.__setattr__(self, "normals", _readonly(nrm))
@@ -302,9 +310,9 @@ def fuse_views(views: Sequence[View], cfg: PointCloudConfig = PointCloudConfig()
     vis = vis[:, :n]
 
     normals = _estimate_normals(mean, cfg.normal_knn)
+    centres = np.stack([v.camera.T_world_camera[:3, 3] for v in views])
     if n:
         # Orient each normal towards the mean centre of the cameras that observed the voxel.
-        centres = np.stack([v.camera.T_world_camera[:3, 3] for v in views])
         nvis = vis.sum(axis=0)
         cam_mean = (vis.T.astype(np.float64) @ centres) / np.maximum(nvis, 1)[:, None]
         flip = np.einsum("ij,ij->i", normals, cam_mean - mean) < 0
@@ -320,4 +328,5 @@ def fuse_views(views: Sequence[View], cfg: PointCloudConfig = PointCloudConfig()
         pixel_voxel=tuple(pixel_voxel),
         stride=tuple(strides),
         visibility=vis,
+        camera_centres=centres,
     )
