@@ -1,0 +1,113 @@
+"""Mask occupancy of super-voxels, o_i(k) of Sec. III-B eq. 2.
+
+A mask of view v covers a voxel in proportion to the pixels of v that fed the voxel
+and lie inside the mask (``FusedCloud.pixel_voxel`` is the provenance; no projection
+is redone). The occupancy of super-voxel k by mask i is the point-count-weighted
+covered fraction of k's voxels:
+
+    o_i(k) = sum_{n in k} c_n * hits_i(n) / fed_v(n)  /  sum_{n in D_k} c_n
+
+with c_n the raw point count of voxel n, hits_i(n) the pixels of mask i that fed n,
+fed_v(n) all pixels of view v that fed n, and D_k the denominator set:
+
+- ``normalise="visible"`` (default, findings point 3): the voxels of k visible in
+  view v. A view cannot see the back of an object, so measuring over all of k would
+  turn S_spatial into a plain voxel IoU between views that see different surfaces
+  (about 70% of super-voxels are a single voxel). This raised AP@50 by 7-9 points.
+- ``normalise="all"`` (paper-literal): every voxel of k.
+
+So o_i(k) is in [0, 1], a mask covering the whole image gives 1 on every super-voxel
+visible in its view, and an empty mask gives 0. Mask pixels off the stride grid or on
+holes are not counted (they fed no voxel).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import scipy.sparse as sp
+
+from clutt3r_core.errors import SceneError
+from clutt3r_core.pointcloud import FusedCloud
+from clutt3r_core.supervoxels import SuperVoxels
+
+__all__ = ["OccupancyConfig", "mask_voxel_hits", "mask_occupancy"]
+
+
+@dataclass(frozen=True)
+class OccupancyConfig:
+    """Occupancy ratio o_i(k) (Sec. III-B, eq. 2)."""
+
+    normalise: Literal["visible", "all"] = "visible"
+    """Denominator of o_i(k): the part of k visible in mask i's view ("visible", ours,
+    findings point 3) or all of k ("all", paper-literal)."""
+
+    def __post_init__(self) -> None:
+        if self.normalise not in ("visible", "all"):
+            raise SceneError(f"OccupancyConfig.normalise must be 'visible' or 'all', got {self.normalise!r}")
+
+
+def _view_pixels(cloud: FusedCloud, view_index: int) -> tuple[np.ndarray, np.ndarray]:
+    """(flat pixel indices (P,) int64, voxel (P,) int64) of the pixels of a view that fed a voxel."""
+    if not 0 <= view_index < len(cloud.pixel_voxel):
+        raise SceneError(f"view index {view_index} out of range 0..{len(cloud.pixel_voxel) - 1}")
+    pv = cloud.pixel_voxel[view_index].reshape(-1)
+    pix = np.flatnonzero(pv >= 0)
+    return pix, pv[pix].astype(np.int64)
+
+
+def _check_masks(cloud: FusedCloud, view_index: int, masks: np.ndarray) -> np.ndarray:
+    masks = np.asarray(masks)
+    shape = cloud.pixel_voxel[view_index].shape if 0 <= view_index < len(cloud.pixel_voxel) else None
+    if masks.ndim != 3 or (shape is not None and masks.shape[1:] != shape):
+        raise SceneError(
+            f"masks of frame {cloud.frames[view_index] if shape else view_index} must be (M, H, W) with"
+            f" (H, W) = {shape}, got {masks.shape}"
+        )
+    return masks.astype(bool, copy=False)
+
+
+def mask_voxel_hits(cloud: FusedCloud, view_index: int, masks: np.ndarray) -> sp.csr_matrix:
+    """(M, N) float32 CSR: number of pixels of mask m (``masks`` (M, H, W) bool of view
+    ``view_index``) that fed voxel n."""
+    masks = _check_masks(cloud, view_index, masks)
+    pix, vox = _view_pixels(cloud, view_index)
+    m = masks.shape[0]
+    # Only the pixels that fed a voxel are gathered (one pass over the masks, not per mask).
+    sub = masks.reshape(m, -1)[:, pix]  # (M, P) bool
+    rows, cols = np.nonzero(sub)
+    hits = sp.coo_matrix(
+        (np.ones(len(rows), np.float32), (rows, vox[cols])), shape=(m, cloud.num), dtype=np.float32
+    ).tocsr()
+    hits.sum_duplicates()
+    return hits
+
+
+def mask_occupancy(
+    cloud: FusedCloud,
+    sv: SuperVoxels,
+    view_index: int,
+    masks: np.ndarray,
+    cfg: OccupancyConfig = OccupancyConfig(),
+) -> np.ndarray:
+    """(M, K) float32 occupancy ratio o_i(k) in [0, 1] of every super-voxel by every mask
+    of view ``view_index`` (Sec. III-B eq. 2; the formula is in the module doc)."""
+    if sv.labels.shape[0] != cloud.num:
+        raise SceneError(f"super-voxels label {sv.labels.shape[0]} voxels but the cloud has {cloud.num}")
+    hits = mask_voxel_hits(cloud, view_index, masks)
+    n, k = cloud.num, sv.num
+    _, vox = _view_pixels(cloud, view_index)
+    fed = np.bincount(vox, minlength=n).astype(np.float64)  # pixels of the view per voxel
+    c = cloud.counts.astype(np.float64)
+    # Per-voxel scale c_n / fed_v(n) (0 where the view fed nothing: such voxels have no hits).
+    scale = np.divide(c, fed, out=np.zeros(n), where=fed > 0)
+    member = sp.csr_matrix((scale, (np.arange(n), sv.labels)), shape=(n, k))
+    num = np.asarray((hits.astype(np.float64) @ member).todense())  # (M, K)
+    if cfg.normalise == "visible":
+        den = np.bincount(sv.labels, weights=c * (fed > 0), minlength=k)
+    else:
+        den = np.bincount(sv.labels, weights=c, minlength=k)
+    occ = np.divide(num, den[None, :], out=np.zeros_like(num), where=den[None, :] > 0)
+    return np.clip(occ, 0.0, 1.0).astype(np.float32)
