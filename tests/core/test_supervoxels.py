@@ -1,0 +1,122 @@
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from clutt3r_core.errors import SceneError
+from clutt3r_core.pointcloud import FusedCloud, fuse_views
+from clutt3r_core.supervoxels import SuperVoxelConfig, SuperVoxels, build_supervoxels, fit_plane_ransac
+from tests.core._geometry_scenes import BOX_MAX, make_views
+
+
+@pytest.fixture(scope="module")
+def table_box():
+    cloud = fuse_views(make_views(3))
+    return cloud, build_supervoxels(cloud)
+
+
+def _line_cloud(normals: np.ndarray, spacing: float = 0.005) -> FusedCloud:
+    n = len(normals)
+    pts = np.zeros((n, 3))
+    pts[:, 0] = np.arange(n) * spacing
+    return FusedCloud(pts, np.zeros((n, 3), np.uint8), normals, np.full(n, 3), 0.005, (0,),
+                      (np.arange(n, dtype=np.int32).reshape(1, n),))
+
+
+def test_invariants(table_box):
+    cloud, sv = table_box
+    assert sv.labels.shape == (cloud.num,) and sv.labels.dtype == np.int32
+    assert sv.labels.min() == 0 and sv.labels.max() == sv.num - 1
+    assert np.bincount(sv.labels).min() >= 1  # no empty super-voxel
+    assert sv.counts.sum() == cloud.counts.sum()
+    np.testing.assert_allclose(sv.weights.sum(), 1.0)
+    np.testing.assert_allclose(sv.weights, sv.counts / sv.counts.sum())
+    assert sv.sizes.sum() == cloud.num
+    assert sv.support.shape == (sv.num,) and sv.support.dtype == bool
+
+
+def test_table_is_support_and_box_is_not(table_box):
+    cloud, sv = table_box
+    # the plane is the table z = 0, normal up towards the cameras
+    np.testing.assert_allclose(sv.plane, [0, 0, 1, 0], atol=2e-3)
+    vs = sv.voxel_support()
+    z = cloud.points[:, 2]
+    on_table = (np.abs(z) < 1e-4) & (np.abs(cloud.points[:, :2]).max(axis=1) > 0.06)
+    assert vs[on_table].mean() > 0.99
+    top = np.abs(z - BOX_MAX[2]) < 1e-4
+    assert not vs[top].any()
+    # the flat box top is (mostly) one super-voxel, and not the table's
+    lab, cnt = np.unique(sv.labels[top], return_counts=True)
+    assert cnt.max() > 0.8 * top.sum()
+    assert lab[cnt.argmax()] not in set(sv.labels[on_table])
+    # box sides are not support either
+    side = (z > 0.01) & (z < BOX_MAX[2] - 0.01)
+    assert not vs[side].any()
+
+
+def test_paper_literal_marks_nothing():
+    cloud = fuse_views(make_views(2))
+    sv = build_supervoxels(cloud, SuperVoxelConfig(support_removal=False))
+    assert sv.plane is None and not sv.support.any()
+
+
+def test_tiny_tau_merge_gives_one_supervoxel_per_voxel():
+    cloud = fuse_views(make_views(1, width=60, height=45, f=75.0))
+    sv = build_supervoxels(cloud, SuperVoxelConfig(tau_merge=1e-6, support_removal=False))
+    assert sv.num == cloud.num
+
+
+def test_absolute_normal_dot_ignores_normal_sign():
+    normals = np.tile([0.0, 0.0, 1.0], (6, 1))
+    normals[::2] *= -1  # alternate signs: unoriented PCA normals
+    cloud = _line_cloud(normals)
+    assert build_supervoxels(cloud, SuperVoxelConfig(support_removal=False)).num == 1
+    signed = build_supervoxels(cloud, SuperVoxelConfig(support_removal=False, absolute_normal_dot=False))
+    # signed: only same-sign voxels (two apart, 1 cm) chain together
+    assert signed.num == 2 and signed.labels.tolist() == [0, 1, 0, 1, 0, 1]
+
+
+def test_eq1_threshold_on_distance_and_normal_angle():
+    cfg = SuperVoxelConfig(support_removal=False)
+    # 5 mm apart: 0.5 * 0.005 = 0.0025 <= 0.01; a 20 degree crease (1 - cos = 0.06) cuts
+    n = np.tile([0.0, 0.0, 1.0], (4, 1))
+    a = np.deg2rad(20)
+    n[2:] = (np.sin(a), 0.0, np.cos(a))
+    sv = build_supervoxels(_line_cloud(n), cfg)
+    assert sv.num == 2 and sv.labels.tolist() == [0, 0, 1, 1]
+    # 3 cm apart: 0.5 * 0.03 = 0.015 > 0.01 even with equal normals
+    sv = build_supervoxels(_line_cloud(np.tile([0.0, 0.0, 1.0], (3, 1)), spacing=0.03), cfg)
+    assert sv.num == 3
+
+
+def test_ransac_finds_the_dominant_plane():
+    rng = np.random.default_rng(0)
+    plane_pts = np.column_stack([rng.uniform(-1, 1, (3000, 2)), rng.normal(0.3, 0.002, 3000)])
+    clutter = rng.uniform(-1, 1, (1000, 3))
+    plane, inl = fit_plane_ransac(np.vstack([plane_pts, clutter]), 0.01)
+    assert abs(abs(plane[2]) - 1) < 1e-3 and abs(abs(plane[3]) - 0.3) < 2e-3
+    assert inl[:3000].mean() > 0.99 and inl[3000:].mean() < 0.05
+    assert fit_plane_ransac(np.zeros((2, 3)), 0.01) is None
+
+
+def test_validation():
+    with pytest.raises(SceneError):
+        SuperVoxelConfig(tau_merge=0)
+    with pytest.raises(SceneError):
+        SuperVoxels(np.array([0, 3]), np.ones(2), np.ones(2) / 2, np.zeros(2, bool))
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize("which", ["seq1_dir", "seq4_dir"])
+def test_real_samples_supervoxels(which, request):
+    from clutt3r_core.io.sample_layout import load_sample_layout
+
+    scene = load_sample_layout(request.getfixturevalue(which), load_masks=False, load_gt=False)
+    cloud = fuse_views(scene.initial_views)
+    sv = build_supervoxels(cloud)
+    assert 1000 < sv.num < cloud.num
+    assert sv.plane is not None
+    # the support is most of a tabletop view, but the objects are left
+    frac = sv.voxel_support().mean()
+    assert 0.5 < frac < 0.97
+    assert (~sv.support & (sv.sizes >= 50)).sum() >= 5
