@@ -76,7 +76,7 @@ def mask_voxel_hits(cloud: FusedCloud, view_index: int, masks: np.ndarray) -> sp
     pix, vox = _view_pixels(cloud, view_index)
     m = masks.shape[0]
     # Only the pixels that fed a voxel are gathered (one pass over the masks, not per mask).
-    sub = masks.reshape(m, -1)[:, pix]  # (M, P) bool
+    sub = masks.reshape(m, masks.shape[1] * masks.shape[2])[:, pix]  # (M, P) bool; M may be 0
     rows, cols = np.nonzero(sub)
     hits = sp.coo_matrix(
         (np.ones(len(rows), np.float32), (rows, vox[cols])), shape=(m, cloud.num), dtype=np.float32
