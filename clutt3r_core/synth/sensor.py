@@ -81,8 +81,13 @@ def depth_noise_preset(name: str) -> DepthNoiseConfig:
 
 
 def quantise_mm(depth: np.ndarray) -> np.ndarray:
-    """Round metres to the whole millimetre (as the uint16 mm files store them); NaN stays NaN."""
-    return (np.round(np.asarray(depth, np.float64) * 1000.0) / 1000.0).astype(np.float32)
+    """Round metres to the whole millimetre (as the uint16 mm files store them); NaN stays NaN.
+
+    Computed exactly as the loader converts millimetres (float32 mm times float32 0.001), so
+    a written and re-read depth map is bit-identical.
+    """
+    mm = np.round(np.asarray(depth, np.float64) * 1000.0).astype(np.float32)
+    return mm * np.float32(0.001)
 
 
 def apply_depth_noise(
