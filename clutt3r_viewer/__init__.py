@@ -1,0 +1,108 @@
+"""Clutt3R inspection viewer: a run (or a scene, segmented on the fly) in the browser.
+
+    import clutt3r_viewer
+    clutt3r_viewer.serve("runs/demo", port=8080)     # a saved run folder, a scene folder,
+                                                     # a Segmentation or a Scene
+
+Reads only the core's public API (``clutt3r_core.pipeline``, ``Trace``); the core never
+imports this package. viser is imported when a server starts.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from clutt3r_viewer.data import GraspSet, UpdateFrame, ViewerData, build_viewer_data
+from clutt3r_viewer.loading import load_viewer_data, register_update_loader, text_embedder_for
+
+__all__ = [
+    "serve",
+    "start",
+    "ViewerData",
+    "GraspSet",
+    "UpdateFrame",
+    "build_viewer_data",
+    "load_viewer_data",
+    "register_update_loader",
+]
+
+
+def start(
+    run_or_scene,
+    port: int = 8080,
+    host: str = "127.0.0.1",
+    scene=None,
+    embedder=None,
+    lod: str = "200k",
+    verbose: bool = False,
+):
+    """Start the viewer and return its ``ViewerApp`` at once (the server runs in threads).
+
+    ``run_or_scene``: a run folder (``clutt3r segment`` output, read without recomputing),
+    a scene folder or ``Scene`` (segmented in the background while the page shows progress),
+    a ``Segmentation`` or a ``ViewerData``. ``scene`` adds images to a run; ``embedder``
+    overrides the text embedder used by the Query tab.
+    """
+    from clutt3r_core.errors import SceneFileError
+    from clutt3r_core.pipeline import Segmentation
+    from clutt3r_core.scene import Scene
+    from clutt3r_viewer.app import ViewerApp
+    from clutt3r_viewer.loading import is_run_dir, is_scene_dir
+
+    app = ViewerApp(None, host=host, port=port, lod=lod, verbose=verbose)
+
+    def finish(data: ViewerData) -> ViewerData:
+        app.text_embedder = text_embedder_for(data, embedder)
+        return data
+
+    def compute_scene(sc: Scene):
+        def compute(report):
+            from clutt3r_core.pipeline import segment
+
+            report(f"segmenting {sc.name or 'scene'}: {len(sc.initial)} views")
+            seg = segment(sc)
+            report("preparing the viewer")
+            return finish(build_viewer_data(seg, sc))
+
+        return compute
+
+    src = run_or_scene
+    if isinstance(src, ViewerData):
+        app.set_data(finish(src))
+    elif isinstance(src, Segmentation):
+        sc = scene
+        if isinstance(sc, (str, Path)):
+            from clutt3r_core.io import load_scene
+
+            sc = load_scene(sc)
+        app.set_data(finish(build_viewer_data(src, sc)))
+    elif isinstance(src, Scene):
+        app.compute_in_background(compute_scene(src))
+    else:
+        p = Path(src)
+        if is_run_dir(p):
+            app.set_data(finish(load_viewer_data(p, scene)))
+        elif is_scene_dir(p):
+            from clutt3r_core.io import load_scene
+
+            app.set_status(f"loading {p}")
+            app.compute_in_background(compute_scene(load_scene(p)))
+        else:
+            app.stop()
+            raise SceneFileError(p, "neither a run folder (instances.npz + trace/) nor a scene folder (transforms.json)")
+    return app
+
+
+def serve(run_or_scene, port: int = 8080, host: str = "127.0.0.1", scene=None, embedder=None, lod: str = "200k"):
+    """Start the viewer (see ``start``), print its URL and serve until Ctrl-C."""
+    app = start(run_or_scene, port=port, host=host, scene=scene, embedder=embedder, lod=lod)
+    print(f"Clutt3R viewer: {app.url}  (Ctrl-C to stop)", flush=True)
+    try:
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        app.stop()
+    return app

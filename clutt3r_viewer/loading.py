@@ -1,0 +1,126 @@
+"""Turning what the user gives (a run folder, a scene folder, objects) into ``ViewerData``.
+
+A run folder is read with ``load_run`` (nothing is recomputed). Its scene (for images
+and cameras) is found, in order: the ``scene`` argument, ``viewer.json`` in the run
+folder (``{"scene": "<path, relative to the run folder or absolute>"}``), a ``scene/``
+subfolder. Without one, the viewer still shows the cloud, trees, graph and replay.
+
+Hooks for data the core does not produce yet:
+- ``register_update_loader(fn)``: ``fn(run_dir, scene) -> tuple[UpdateFrame, ...]`` adds
+  post-interaction frames to replay (the Updates tab appears only when some exist).
+- grasps: ``grasps.npz`` in the run folder (``GraspSet.load``); the Grasps tab appears only then.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Callable
+
+from clutt3r_core.errors import Clutt3rError, SceneFileError
+from clutt3r_core.scene import Scene
+from clutt3r_viewer.data import GraspSet, UpdateFrame, ViewerData, build_viewer_data
+
+__all__ = [
+    "is_run_dir",
+    "is_scene_dir",
+    "find_scene",
+    "load_viewer_data",
+    "register_update_loader",
+    "load_updates",
+    "text_embedder_for",
+    "write_viewer_link",
+]
+
+UpdateLoader = Callable[[Path | None, Scene | None], tuple[UpdateFrame, ...]]
+_UPDATE_LOADERS: list[UpdateLoader] = []
+
+
+def register_update_loader(fn: UpdateLoader) -> UpdateLoader:
+    """Register a source of post-interaction frames (see module docstring)."""
+    _UPDATE_LOADERS.append(fn)
+    return fn
+
+
+def load_updates(run_dir: Path | None, scene: Scene | None) -> tuple[UpdateFrame, ...]:
+    out: list[UpdateFrame] = []
+    for fn in _UPDATE_LOADERS:
+        out.extend(fn(run_dir, scene))
+    return tuple(out)
+
+
+def is_run_dir(p: Path) -> bool:
+    return (p / "instances.npz").is_file() and (p / "trace").is_dir()
+
+
+def is_scene_dir(p: Path) -> bool:
+    return (p / "transforms.json").is_file() or (p / "scene_camera.json").is_file() or (p / "data" / "transforms.json").is_file()
+
+
+def find_scene(run_dir: Path) -> Path | None:
+    """The scene folder linked to a run folder, or None (module docstring)."""
+    link = run_dir / "viewer.json"
+    if link.is_file():
+        try:
+            p = Path(json.loads(link.read_text())["scene"])
+        except (json.JSONDecodeError, KeyError, TypeError) as e:
+            raise SceneFileError(link, f"expected {{\"scene\": \"<folder>\"}}: {e}") from None
+        p = p if p.is_absolute() else run_dir / p
+        if not is_scene_dir(p):
+            raise SceneFileError(link, f"linked scene folder {p} has no transforms.json / scene_camera.json")
+        return p
+    if is_scene_dir(run_dir / "scene"):
+        return run_dir / "scene"
+    return None
+
+
+def write_viewer_link(run_dir: Path, scene_dir: Path) -> None:
+    """Record the scene of a run so that ``clutt3r view RUN_DIR`` shows its images."""
+    from clutt3r_core.io.images import atomic_write_bytes
+
+    try:
+        rel = Path(scene_dir).resolve().relative_to(Path(run_dir).resolve())
+        target = str(rel)
+    except ValueError:
+        target = str(Path(scene_dir).resolve())
+    atomic_write_bytes(Path(run_dir) / "viewer.json", json.dumps({"scene": target}).encode())
+
+
+def load_viewer_data(run_dir: Path, scene: Scene | Path | None = None) -> ViewerData:
+    """Read a saved run (and its scene, if found) without recomputing."""
+    from clutt3r_core.io import load_scene
+    from clutt3r_core.pipeline import load_run
+
+    run_dir = Path(run_dir)
+    seg = load_run(run_dir)
+    if scene is None:
+        scene = find_scene(run_dir)
+    if isinstance(scene, (str, Path)):
+        scene = load_scene(scene)
+    grasps = GraspSet.load(run_dir / "grasps.npz") if (run_dir / "grasps.npz").is_file() else None
+    return build_viewer_data(seg, scene, grasps=grasps, updates=load_updates(run_dir, scene))
+
+
+def text_embedder_for(data: ViewerData, override=None):
+    """The embedder that can place text in the space of the run's mask embeddings, or None.
+
+    ``override`` (an embedder object) wins. Otherwise the run's own embedder (by the name
+    in its trace) is created and asked for one text embedding; a backend without text
+    support (``NotImplementedError``, e.g. 'appearance-hsv') or one that is not installed
+    gives None, and the Query tab is not shown.
+    """
+    from clutt3r_core.embeddings import create_embedder
+
+    emb = override
+    if emb is None:
+        try:
+            emb = create_embedder(data.trace.embedder)
+        except (Clutt3rError, ImportError, TypeError):
+            return None
+    try:
+        t = emb.embed_text(["object"])
+    except NotImplementedError:
+        return None
+    if t.ndim != 2 or t.shape[1] != data.trace.embeddings.shape[1]:
+        return None
+    return emb
