@@ -1,0 +1,91 @@
+"""``clutt3r view``, ``clutt3r export-rerun`` and ``clutt3r demo`` (entry-point group ``clutt3r.commands``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+from tyro.conf import Positional
+
+__all__ = ["view_command", "export_rerun_command", "demo_command"]
+
+
+def view_command(
+    path: Positional[Path],
+    port: int = 8080,
+    host: str = "127.0.0.1",
+    scene: Path | None = None,
+    lod: Literal["50k", "200k", "1M", "all"] = "200k",
+) -> None:
+    """Inspect a run (or segment a scene and inspect it) in the browser.
+
+    Args:
+        path: a run folder (`clutt3r segment` output; nothing is recomputed) or a scene folder
+            (segmented on the fly, progress shown in the page).
+        port: port of the web server.
+        host: address to bind; 127.0.0.1 keeps it local.
+        scene: the run's scene folder, for images and cameras (default: viewer.json or scene/ in the run).
+        lod: points sent to each browser tab at first (level of detail; changeable in the page).
+    """
+    from clutt3r_viewer import serve
+
+    serve(path, port=port, host=host, scene=scene, lod=lod)
+
+
+def export_rerun_command(run: Positional[Path], out: Positional[Path], scene: Path | None = None, max_points: int = 50_000) -> None:
+    """Write a run's trace to a rerun recording (.rrd): views, masks, grouping steps, instances.
+
+    Args:
+        run: run folder.
+        out: the .rrd file to write.
+        scene: the run's scene folder (default: viewer.json or scene/ in the run); without it no images.
+        max_points: points of the per-event replay cloud.
+    """
+    from clutt3r_viewer.loading import load_viewer_data
+    from clutt3r_viewer.rerun_export import export_rerun
+
+    data = load_viewer_data(run, scene)
+    p = export_rerun(data, out, max_points=max_points)
+    print(f"{p}: {p.stat().st_size / 1e6:.1f} MB ({len(data.views)} views, {data.num_events} grouping events, "
+          f"{data.seg.num_instances} instances)")
+
+
+def demo_command(
+    out: Path = Path("runs/demo"),
+    port: int = 8080,
+    seed: int = 0,
+    preset: str = "intermediate",
+) -> None:
+    """Generate a synthetic scene, segment it, save the run and open it in the viewer.
+
+    Args:
+        out: run folder to write; the scene goes to OUT/scene.
+        port: port of the web server (http://127.0.0.1:PORT).
+        seed: random seed of the generated scene.
+        preset: clutter level of the scene: easy, intermediate or hard.
+    """
+    from clutt3r_viewer import serve
+
+    run = make_demo_run(out, seed=seed, preset=preset)
+    serve(run, port=port)
+
+
+def make_demo_run(out: Path, seed: int = 0, preset: str = "intermediate", views: int = 8,
+                  width: int = 640, height: int = 480, focal_px: float | None = None) -> Path:
+    """Generate + segment + save (the demo without the server). Returns the run folder."""
+    from clutt3r_core.pipeline import save_run, segment
+    from clutt3r_core.synth import SynthConfig, generate, write_synth_scene
+    from clutt3r_viewer.loading import write_viewer_link
+
+    out = Path(out)
+    kw = {} if focal_px is None else {"focal_px": focal_px}
+    cfg = SynthConfig(seed=seed, preset=preset, views=views, width=width, height=height, **kw)
+    print(f"generating a synthetic '{preset}' scene (seed {seed}, {views} views) ...", flush=True)
+    res = generate(cfg, progress=False)
+    scene_dir = write_synth_scene(res.scene, out / "scene", info=res.info, contact_sheet=False)
+    print("segmenting ...", flush=True)
+    seg = segment(res.scene)
+    save_run(seg, out)
+    write_viewer_link(out, scene_dir)
+    print(f"{out}: {seg.num_instances} instances ({len(res.info.object_keys)} objects in the scene)", flush=True)
+    return out
