@@ -1,0 +1,61 @@
+"""clutt3r_viewer.loading: run folders, scene links, hooks, text-embedder detection."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from clutt3r_core.errors import SceneFileError
+from clutt3r_viewer.data import UpdateFrame
+from clutt3r_viewer.loading import (
+    _UPDATE_LOADERS,
+    find_scene,
+    is_run_dir,
+    load_viewer_data,
+    register_update_loader,
+    text_embedder_for,
+)
+
+
+def test_run_folder_loads_without_recomputing(tiny_run_dir, tiny_data):
+    assert is_run_dir(tiny_run_dir)
+    assert find_scene(tiny_run_dir) is not None
+    d = load_viewer_data(tiny_run_dir)
+    assert len(d.views) == len(tiny_data.views)
+    assert np.array_equal(d.seg.instance, tiny_data.seg.instance)
+    assert np.array_equal(d.edges, tiny_data.edges)
+    assert d.grasps is None and d.updates == ()
+
+
+def test_bad_scene_link_names_the_file(tiny_run_dir, tmp_path):
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run_dir, run)
+    (run / "viewer.json").write_text(json.dumps({"scene": str(tmp_path / "nowhere")}))
+    with pytest.raises(SceneFileError, match="viewer.json"):
+        find_scene(run)
+    (run / "viewer.json").unlink()
+    assert find_scene(run) is None
+    assert load_viewer_data(run).views == ()  # still viewable, without images
+
+
+def test_update_hook_feeds_the_updates_tab(tiny_run_dir):
+    @register_update_loader
+    def fake(run_dir, scene):
+        return (UpdateFrame(frame=99, text="object 2 removed"),)
+
+    try:
+        d = load_viewer_data(tiny_run_dir)
+        assert [u.frame for u in d.updates] == [99]
+    finally:
+        _UPDATE_LOADERS.remove(fake)
+
+
+def test_text_embedder_only_when_the_backend_embeds_text(tiny_data):
+    from clutt3r_core.embeddings import AppearanceEmbedder
+
+    assert text_embedder_for(tiny_data).name == "fake-text"  # the run's own embedder (registered in conftest)
+    assert text_embedder_for(tiny_data, AppearanceEmbedder()) is None  # NotImplementedError -> no Query tab
