@@ -321,7 +321,11 @@ def _mark_support(
     if side < 0:
         plane = -plane
     h = pts @ plane[:3] + plane[3]
-    bad = h <= cfg.plane_distance  # rule 2: on or below the support plane
+    # rule 2: below the support plane, or on it and facing along its normal. The normal
+    # test keeps the lowest centimetre of objects that stand on the support (their sides
+    # face sideways) and of thin objects lying on it (a hammer handle) out of the support.
+    facing = np.abs(nrm @ plane[:3]) >= np.cos(np.deg2rad(cfg.patch_max_angle))
+    bad = (h < -cfg.plane_distance) | ((h <= cfg.plane_distance) & facing)
 
     # Plane frame (e1, e2 in the plane, h along its normal) for extents.
     nz = plane[:3]
