@@ -10,6 +10,7 @@ majority vote. ``save_run`` / ``load_run`` write and read a run folder:
     instance_tree.json   the grouping in the original release's schema (schema_version 1)
     cloud.npz            normals, voxel counts, super-voxel labels and support flags
     trace/               trace.npz + trace.json (every intermediate, see segmentation/trace.py)
+    overview.png         (CLI only) instances splatted into up to four views
 """
 
 from __future__ import annotations
@@ -420,6 +421,10 @@ def segment_command(
         sc = load_scene(scene)
     seg = segment(sc, config, progress=True)
     save_run(seg, out)
+    from clutt3r_core.io.images import write_png
+    from clutt3r_core.visualize import overview_sheet
+
+    write_png(Path(out) / "overview.png", overview_sheet(seg.points, seg.instance, sc))
     t = seg.trace
     console.print(
         f"[bold]{sc.name}[/]: {seg.num_instances} instances from {int(t.nodes.is_leaf.sum())} leaves "
