@@ -72,8 +72,8 @@ def overlay_image(data: ViewerData, vi: int, selected: int = -1, max_width: int 
     for i in order:
         m = stack[i]
         if tr.nodes.background[i]:
-            hatch = m & ((np.add.outer(np.arange(m.shape[0]), np.arange(m.shape[1])) // 3) % 2 == 0)
-            img[hatch] *= 0.5
+            hatch = m & ((np.add.outer(np.arange(m.shape[0]), np.arange(m.shape[1])) // 4) % 4 == 0)
+            img[hatch] *= 0.7
         elif tr.nodes.is_leaf[i] or data.substituted[i]:
             inst = data.node_instance[i]
             col = PALETTE[inst % len(PALETTE)] if inst >= 0 else GREY
@@ -92,13 +92,13 @@ def overlay_image(data: ViewerData, vi: int, selected: int = -1, max_width: int 
 
 def default_camera(data: ViewerData) -> tuple[np.ndarray, np.ndarray]:
     """(look_at, eye) in world metres: the objects' centre, seen obliquely (30 degrees up) from the
-    side of the first view, 1.6x as far as the cameras, so the frustums above the pile stay out of the way."""
+    side of the first view, 1.1x as far as the cameras, so the frustums above the pile stay out of the way."""
     seg = data.seg
     obj = seg.instance >= 0
     look = seg.points[obj].mean(axis=0).astype(np.float64) if obj.any() else data.centre
     if data.views:
         cams = np.stack([v.camera.T_world_camera[:3, 3] for v in data.views])
-        dist = float(np.linalg.norm(cams - look, axis=1).mean()) * 1.6
+        dist = float(np.linalg.norm(cams - look, axis=1).mean()) * 1.1
         az_dir = cams[0, :2] - look[:2]
     else:
         dist = float(np.linalg.norm(np.ptp(seg.points, axis=0))) if len(seg.points) else 1.0
@@ -359,7 +359,8 @@ class Session:
             h["frustums"] = gui.add_checkbox("Cameras", True)
             h["frustums"].on_update(lambda ev: self._toggle_frustums(h["frustums"].value))
             h["instances"] = gui.add_markdown(self._instances_md())
-        with tabs.add_tab("Tree"):
+        with tabs.add_tab("Tree") as tree_tab:
+            h["tree_tab"] = tree_tab
             h["tree_md"] = gui.add_markdown("")
             h["clear"] = gui.add_button("Clear selection")
             h["clear"].on_click(lambda ev: self.select_node(-1))
@@ -572,8 +573,9 @@ class Session:
         if old is not None:
             old.remove()
         self.tree_buttons = {}
-        tab = self.h["tree_md"]  # the folder goes right after the legend
-        folder = gui.add_folder(f"Tree of frame {int(d.trace.frames[vi])}", order=tab.order + 0.5)
+        legend = self.h["tree_md"]  # the folder goes right after the legend, inside the Tree tab
+        with self.h["tree_tab"]:
+            folder = gui.add_folder(f"Tree of frame {int(d.trace.frames[vi])}", order=legend.order + 0.5)
         with folder:
             for i, depth in order:
                 b = gui.add_button(tree_button_label(d, i, depth), color=None)
