@@ -157,22 +157,28 @@ class GroupingResult:
 def spatial_similarity(occupancy: np.ndarray, weights: np.ndarray, eps: float = 1e-9) -> np.ndarray:
     """(U, U) weighted Jaccard of occupancy rows (eq. 2).
 
-    occupancy: (U, K) o_i(k) in [0, 1]; weights: (K,) w_hat_k. Only super-voxels
-    touched by some node enter the sums; the pairwise min / max is done in blocks.
+    occupancy: (U, K) o_i(k) in [0, 1]; weights: (K,) w_hat_k. Returns float32.
+    Occupancy rows are sparse (a mask touches a few hundred of tens of thousands of
+    super-voxels), so the intersection sum_k w_k min(o_i, o_j) of row i is taken over
+    the non-zero columns of row i only (min is 0 elsewhere), and the union follows from
+    max(a, b) = a + b - min(a, b): union_ij = W_i + W_j - inter_ij with W_i = sum_k w_k o_i(k).
+    Sums are in float64; the result equals the dense float32 formula to float32 round-off.
     """
     occ = np.asarray(occupancy, np.float32)
-    cols = np.flatnonzero(occ.max(axis=0, initial=0) > 0)
-    occ = occ[:, cols]
-    w = np.asarray(weights, np.float32)[cols]
     u = occ.shape[0]
-    inter = np.zeros((u, u), np.float32)
-    union = np.zeros((u, u), np.float32)
-    block = max(1, int(2e7 // max(1, u * len(cols))))
-    for s in range(0, u, block):
-        a = occ[s : s + block, None, :]
-        inter[s : s + block] = (np.minimum(a, occ[None]) * w).sum(-1)
-        union[s : s + block] = (np.maximum(a, occ[None]) * w).sum(-1)
-    return inter / (union + eps)
+    w = np.asarray(weights, np.float64)
+    rows, cols = np.nonzero(occ)
+    vals = occ[rows, cols].astype(np.float64)
+    wa = np.bincount(rows, weights=vals * w[cols], minlength=u)  # W_i
+    inter = np.zeros((u, u), np.float64)
+    starts = np.searchsorted(rows, np.arange(u + 1))  # np.nonzero is row-major: rows sorted
+    # One row at a time (a loop over masks, not points): (U, nnz_i) block per row.
+    for i in range(u):
+        c = cols[starts[i] : starts[i + 1]]
+        if len(c):
+            inter[i] = np.minimum(occ[:, c], vals[starts[i] : starts[i + 1]]) @ w[c]
+    union = wa[:, None] + wa[None, :] - inter
+    return (inter / (union + eps)).astype(np.float32)
 
 
 def semantic_similarity(embeddings: np.ndarray) -> np.ndarray:
