@@ -200,6 +200,7 @@ class Session:
         with self.lock:
             if self.built or self.closed:
                 return
+            t0 = time.perf_counter()
             d = self.app.data
             assert d is not None
             c = self.client
@@ -215,6 +216,7 @@ class Session:
                 self._build_gui()
             if self.notification is not None:  # this tab waited for a computation
                 self._set_camera()
+            self.build_seconds = time.perf_counter() - t0
             self.built = True
 
     def _set_camera(self) -> None:

@@ -71,7 +71,10 @@ def _open(browser, app):
 
 
 def _canvas_shot(page) -> np.ndarray:
-    return _image(page.locator("canvas").first.screenshot())
+    # a clipped page screenshot: element screenshots wait ~15 s for "stability" under software WebGL
+    box = page.locator("canvas").first.bounding_box()
+    clip = {"x": box["x"], "y": box["y"], "width": min(box["width"], 860), "height": box["height"]}
+    return _image(page.screenshot(clip=clip))
 
 
 def _tab(page, name):

@@ -28,3 +28,12 @@ def test_commands_are_registered_with_the_core_cli():
 
     cmds = available_commands()
     assert {"view", "export-rerun", "demo"} <= set(cmds)
+
+
+def test_demo_run_is_written_with_its_scene_linked(tmp_path):
+    from clutt3r_viewer.cli import make_demo_run
+    from clutt3r_viewer.loading import load_viewer_data
+
+    run = make_demo_run(tmp_path / "demo", seed=1, preset="easy", views=3, width=320, height=240, focal_px=200.0)
+    d = load_viewer_data(run)
+    assert len(d.views) == 3 and (run / "viewer.json").is_file() and (run / "instance_tree.json").is_file()
