@@ -59,3 +59,20 @@ def test_text_embedder_only_when_the_backend_embeds_text(tiny_data):
 
     assert text_embedder_for(tiny_data).name == "fake-text"  # the run's own embedder (registered in conftest)
     assert text_embedder_for(tiny_data, AppearanceEmbedder()) is None  # NotImplementedError -> no Query tab
+
+
+def test_a_scene_folder_is_segmented_in_the_background(tiny_run_dir, tiny_data):
+    import time
+
+    import clutt3r_viewer
+    from tests.viewer.conftest import free_port
+
+    app = clutt3r_viewer.start(tiny_run_dir.parent / "scene", port=free_port())
+    try:
+        t0 = time.time()
+        while app.data is None and time.time() - t0 < 60:
+            time.sleep(0.2)
+        assert app.data is not None, f"not ready: {app._status}"
+        assert app.data.seg.num_instances > 0 and len(app.data.views) == len(tiny_data.views)
+    finally:
+        app.stop()
