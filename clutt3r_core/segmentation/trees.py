@@ -27,7 +27,7 @@ import numpy as np
 from clutt3r_core.errors import SceneError
 from clutt3r_core.scene import MaskCandidates
 
-__all__ = ["TreeConfig", "InstanceTree", "build_instance_tree", "mask_overlaps"]
+__all__ = ["TreeConfig", "InstanceTree", "build_instance_tree", "mask_overlaps", "mask_codes"]
 
 
 @dataclass(frozen=True)
@@ -112,27 +112,74 @@ class InstanceTree:
         return np.asarray(out, dtype=np.int64)
 
 
+def _pack16(flat: np.ndarray) -> np.ndarray:
+    """(P,) uint16 code of a (B <= 16, P) bool stack: bit b set where row b is True."""
+    b, p = flat.shape
+    code = np.zeros(p, np.uint16)
+    acc = np.empty(p, np.uint8)
+    tmp = np.empty(p, np.uint8)
+    # Bits are gathered eight rows at a time in a uint8 accumulator: a quarter of the
+    # memory traffic of shifting every row into a wide integer.
+    for g in range(0, b, 8):
+        acc[:] = flat[g].view(np.uint8)
+        for r in range(1, min(8, b - g)):
+            np.left_shift(flat[g + r].view(np.uint8), r, out=tmp)
+            acc |= tmp
+        code |= acc.astype(np.uint16) << np.uint16(g)
+    return code
+
+
+def mask_codes(flat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Factorise the pixels of a (M, P) bool mask stack by the set of masks containing them.
+
+    Returns (label (P,) int64 in 0..C-1, bits (C, M) bool): pixel p lies in mask m iff
+    ``bits[label[p], m]``. Masks are packed 16 at a time into uint16 codes that are
+    factorised by counting (no sort); the few hundred distinct codes of nested and
+    overlapping masks then stand for the millions of pixels. Per-mask pixel sums become
+    ``bits.T @ per_code_sums``, exact for integer counts. M = 0 gives one empty code.
+    """
+    flat = np.asarray(flat, bool)
+    m, p = flat.shape
+    label = np.zeros(p, np.int64)
+    bits = np.zeros((1, 0), bool)
+    for s in range(0, m, 16):
+        chunk = flat[s : s + 16]
+        nb = chunk.shape[0]
+        code = _pack16(chunk)
+        present = np.flatnonzero(np.bincount(code, minlength=1 << nb))
+        lut = np.zeros(1 << nb, np.int64)
+        lut[present] = np.arange(len(present))
+        cbits = ((present[:, None] >> np.arange(nb)) & 1).astype(bool)
+        if s == 0:
+            label, bits = lut[code], cbits
+            continue
+        k = len(present)
+        comb = label * k + lut[code]
+        if len(bits) * k <= 1 << 22:
+            used = np.flatnonzero(np.bincount(comb, minlength=len(bits) * k))
+            lut2 = np.zeros(len(bits) * k, np.int64)
+            lut2[used] = np.arange(len(used))
+            label = lut2[comb]
+        else:  # very many distinct codes: sort instead of counting
+            used, label = np.unique(comb, return_inverse=True)
+            label = label.reshape(-1)
+        bits = np.concatenate([bits[used // k], cbits[used % k]], axis=1)
+    return label, bits
+
+
 def mask_overlaps(masks: np.ndarray) -> np.ndarray:
     """(M, M) int64 pixel intersection counts of a (M, H, W) bool stack (diagonal = areas).
 
-    Packs up to 63 masks per pixel into a uint64 code, counts unique codes, and
+    Factorises the pixels by the set of masks containing them (``mask_codes``) and
     accumulates over the few hundred distinct codes instead of M^2 full-image passes.
     """
     m = masks.shape[0]
     if m == 0:
         return np.zeros((0, 0), np.int64)
-    flat = masks.reshape(m, -1)
-    out = np.zeros((m, m), np.int64)
-    chunks = [np.arange(s, min(s + 63, m)) for s in range(0, m, 63)]
-    if len(chunks) == 1:
-        codes = np.zeros(flat.shape[1], np.uint64)
-        for b, i in enumerate(chunks[0]):
-            codes |= flat[i].astype(np.uint64) << np.uint64(b)
-        uniq, counts = np.unique(codes[codes != 0], return_counts=True)
-        bits = ((uniq[:, None] >> np.arange(m, dtype=np.uint64)[None, :]) & np.uint64(1)).astype(np.int64)
-        return bits.T @ (bits * counts[:, None])
-    f = flat.astype(np.float32)
-    return np.rint(f @ f.T).astype(np.int64)
+    label, bits = mask_codes(masks.reshape(m, -1))
+    counts = np.bincount(label, minlength=len(bits))
+    b = bits.astype(np.int64)
+    return b.T @ (b * counts[:, None])
 
 
 def build_instance_tree(masks: MaskCandidates, frame: int, cfg: TreeConfig = TreeConfig()) -> InstanceTree:
@@ -141,15 +188,16 @@ def build_instance_tree(masks: MaskCandidates, frame: int, cfg: TreeConfig = Tre
     min_area = cfg.min_area_px if cfg.min_area_px > 0 else max(1, int(round(1e-4 * h * w)))
     order = np.argsort(masks.ids, kind="stable")  # canonical order: by id, whatever the input order
     ids = masks.ids[order]
-    stack = masks.masks[order]
-    areas = stack.reshape(len(ids), -1).sum(axis=1).astype(np.int64) if len(ids) else np.zeros(0, np.int64)
+    # Overlaps of all masks in one pass over the stack as given (no reordered copy of
+    # the images); reordering and dropping then act on the small (M, M) matrix.
+    inter = mask_overlaps(masks.masks)[np.ix_(order, order)]
+    areas = np.diag(inter).astype(np.int64)
     keep = areas >= min_area
     dropped = ids[~keep]
-    ids, stack, areas = ids[keep], stack[keep], areas[keep]
+    ids, areas, inter = ids[keep], areas[keep], inter[np.ix_(keep, keep)]
     m = len(ids)
     parent = np.full(m, -1, np.int32)
     if m:
-        inter = mask_overlaps(stack)
         frac_in = inter / np.maximum(areas[:, None], 1)  # frac_in[i, j] = |i & j| / |i|
         inside = frac_in >= cfg.tau_contain
         contained = inside & ~inside.T  # mutual containment = duplicates, not nested
