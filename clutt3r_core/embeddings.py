@@ -79,17 +79,27 @@ class AppearanceEmbedder:
         out = np.zeros((m, self.dim), np.float32)
         if m == 0:
             return out
-        hsv = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2HSV_FULL).reshape(-1, 3).astype(np.int64)
-        h, s, v = hsv[:, 0], hsv[:, 1], hsv[:, 2]
-        hb = np.where(s >= self.min_saturation, h * self.hue_bins // 256, self.hue_bins)
-        sb = s * self.sat_bins // 256
-        joint = hb * self.sat_bins + sb
-        vb = (self.hue_bins + 1) * self.sat_bins + v * self.val_bins // 256
-        flat = masks.reshape(m, -1)
-        mi, pix = np.nonzero(flat)
+        from clutt3r_core.segmentation.trees import mask_codes
+
+        hsv = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2HSV_FULL).reshape(-1, 3)
+        # Bin indices through lookup tables over the 8-bit channels (same formulas,
+        # evaluated once per possible value instead of once per pixel).
+        hv, sv = np.meshgrid(np.arange(256), np.arange(256), indexing="ij")
+        hb = np.where(sv >= self.min_saturation, hv * self.hue_bins // 256, self.hue_bins)
+        lut_joint = (hb * self.sat_bins + sv * self.sat_bins // 256).astype(np.int32).reshape(-1)
+        lut_v = ((self.hue_bins + 1) * self.sat_bins + np.arange(256) * self.val_bins // 256).astype(np.int32)
+        joint = lut_joint[(hsv[:, 0].astype(np.int32) << 8) | hsv[:, 1]]
+        vb = lut_v[hsv[:, 2]]
         d = self.dim
-        hist = np.bincount(mi * d + joint[pix], minlength=m * d).astype(np.float64)
-        hist += np.bincount(mi * d + vb[pix], minlength=m * d)
+        # Histograms per distinct set of containing masks (a few hundred codes instead of
+        # a gather over every mask pixel), summed into each mask by bits.T @ per-code
+        # histograms. Counts are integers, so the result is exactly the per-mask count.
+        label, bits = mask_codes(masks.reshape(m, -1))
+        c = len(bits)
+        key = label * d
+        per_code = np.bincount(key + joint, minlength=c * d).astype(np.float64)
+        per_code += np.bincount(key + vb, minlength=c * d)
+        hist = bits.T.astype(np.float64) @ per_code.reshape(c, d)
         hist = hist.reshape(m, d)
         hist = np.sqrt(hist)
         norm = np.linalg.norm(hist, axis=1, keepdims=True)
