@@ -31,6 +31,7 @@ import scipy.sparse as sp
 
 from clutt3r_core.errors import SceneError
 from clutt3r_core.pointcloud import FusedCloud
+from clutt3r_core.segmentation.trees import mask_codes
 from clutt3r_core.supervoxels import SuperVoxels
 
 __all__ = ["OccupancyConfig", "mask_voxel_hits", "mask_occupancy"]
@@ -77,11 +78,19 @@ def mask_voxel_hits(cloud: FusedCloud, view_index: int, masks: np.ndarray) -> sp
     m = masks.shape[0]
     # Only the pixels that fed a voxel are gathered (one pass over the masks, not per mask).
     sub = masks.reshape(m, masks.shape[1] * masks.shape[2])[:, pix]  # (M, P) bool; M may be 0
-    rows, cols = np.nonzero(sub)
-    hits = sp.coo_matrix(
-        (np.ones(len(rows), np.float32), (rows, vox[cols])), shape=(m, cloud.num), dtype=np.float32
-    ).tocsr()
+    # Factorise those pixels by the set of masks containing them: (code, voxel) pair
+    # counts, then hits = bits.T @ pair counts. All counts are small integers, exact in
+    # float32, so this equals counting (mask, pixel) pairs one by one.
+    label, bits = mask_codes(sub)
+    inside = bits.any(axis=1)[label]  # pixels in no mask add nothing
+    c = len(bits)
+    pairs = sp.csr_matrix(
+        (np.ones(int(inside.sum()), np.float32), (label[inside], vox[inside])), shape=(c, cloud.num)
+    )
+    pairs.sum_duplicates()
+    hits = (sp.csr_matrix(bits.T.astype(np.float32)) @ pairs).tocsr()
     hits.sum_duplicates()
+    hits.sort_indices()
     return hits
 
 
@@ -91,20 +100,33 @@ def mask_occupancy(
     view_index: int,
     masks: np.ndarray,
     cfg: OccupancyConfig = OccupancyConfig(),
+    hits: sp.csr_matrix | None = None,
 ) -> np.ndarray:
     """(M, K) float32 occupancy ratio o_i(k) in [0, 1] of every super-voxel by every mask
-    of view ``view_index`` (Sec. III-B eq. 2; the formula is in the module doc)."""
+    of view ``view_index`` (Sec. III-B eq. 2; the formula is in the module doc).
+
+    ``hits``: ``mask_voxel_hits(cloud, view_index, masks)`` when the caller already has
+    it (ours, for speed: the pipeline also needs it for the background test)."""
     if sv.labels.shape[0] != cloud.num:
         raise SceneError(f"super-voxels label {sv.labels.shape[0]} voxels but the cloud has {cloud.num}")
-    hits = mask_voxel_hits(cloud, view_index, masks)
+    if hits is None:
+        hits = mask_voxel_hits(cloud, view_index, masks)
+    elif hits.shape != (np.shape(masks)[0], cloud.num):
+        raise SceneError(f"hits must be ({np.shape(masks)[0]}, {cloud.num}), got {hits.shape}")
     n, k = cloud.num, sv.num
     _, vox = _view_pixels(cloud, view_index)
     fed = np.bincount(vox, minlength=n).astype(np.float64)  # pixels of the view per voxel
     c = cloud.counts.astype(np.float64)
     # Per-voxel scale c_n / fed_v(n) (0 where the view fed nothing: such voxels have no hits).
     scale = np.divide(c, fed, out=np.zeros(n), where=fed > 0)
-    member = sp.csr_matrix((scale, (np.arange(n), sv.labels)), shape=(n, k))
-    num = np.asarray((hits.astype(np.float64) @ member).todense())  # (M, K)
+    # num = hits @ member with member (N, K) = scale on (n, label_n): a weighted sum of
+    # each hit row into its super-voxels, done on the hits' non-zeros only.
+    h = hits.tocoo()
+    m = h.shape[0]
+    num = np.bincount(
+        h.row.astype(np.int64) * k + sv.labels[h.col], weights=h.data.astype(np.float64) * scale[h.col],
+        minlength=m * k,
+    ).astype(np.float64, copy=False).reshape(m, k)  # (bincount of nothing is int64)
     if cfg.normalise == "visible":
         den = np.bincount(sv.labels, weights=c * (fed > 0), minlength=k)
     else:
