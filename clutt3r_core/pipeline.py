@@ -198,12 +198,12 @@ def segment(
 
     with timer("occupancy"):
         occ_parts, bg_parts = [], []
-        support_voxel = sv.support[sv.labels]
+        support_voxel = sv.support[sv.labels].astype(np.float64)
         for vi, (v, masks) in enumerate(zip(views, nodes_masks)):
-            occ_parts.append(mask_occupancy(cloud, sv, vi, masks, config.occupancy))
-            hits = mask_voxel_hits(cloud, vi, masks)
-            total = np.asarray(hits.sum(axis=1)).ravel()
-            on_support = np.asarray(hits[:, support_voxel].sum(axis=1)).ravel()
+            hits = mask_voxel_hits(cloud, vi, masks)  # once per view: occupancy and background
+            occ_parts.append(mask_occupancy(cloud, sv, vi, masks, config.occupancy, hits=hits))
+            total = hits @ np.ones(cloud.num)  # integer pixel counts: exact in float64
+            on_support = hits @ support_voxel
             bg_parts.append(on_support > config.background_fraction * np.maximum(total, 1e-9))
         occupancy = np.concatenate(occ_parts, axis=0) if occ_parts else np.zeros((0, sv.num), np.float32)
         background = np.concatenate(bg_parts) if bg_parts else np.zeros(0, bool)
@@ -282,7 +282,10 @@ def _node_table(views, trees: tuple[InstanceTree, ...]) -> tuple[list[np.ndarray
     for vi, (v, t) in enumerate(zip(views, trees)):
         m = len(t.mask_ids)
         idx = np.array([v.masks.index_of(int(i)) for i in t.mask_ids], np.int64)
-        stacks.append(v.masks.masks[idx] if m else np.zeros((0, *v.masks.shape), bool))
+        if m and np.array_equal(idx, np.arange(len(v.masks))):
+            stacks.append(v.masks.masks)  # already in canonical order: no copy of the images
+        else:
+            stacks.append(v.masks.masks[idx] if m else np.zeros((0, *v.masks.shape), bool))
         frame.append(np.full(m, v.frame, np.int32))
         view.append(np.full(m, vi, np.int32))
         mask_id.append(t.mask_ids.astype(np.int32))
