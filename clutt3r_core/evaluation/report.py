@@ -210,12 +210,14 @@ def write_report(
     elapsed: float = float("nan"),
     workers: int = 1,
     main=None,
-    plot_dir: str | None = None,
+    markdown: str | Path | None = None,
+    notes: str = "",
 ) -> Path:
     """Write ``out/report.md``, ``out/results.json`` and the plots; returns the report path.
 
     ``main``: the main ``Setting`` (8 views, grounded-sam-like); results of other settings
-    feed the sweeps. ``plot_dir``: how the Markdown refers to the plot folder (default: same folder).
+    feed the sweeps. ``markdown``: where to write the Markdown (default ``out/report.md``);
+    plot links are relative to it.
     """
     from clutt3r_core.evaluation.runner import Setting, code_version
 
@@ -234,7 +236,9 @@ def write_report(
     if not {r.mask_noise for r in noise_res} - {main.mask_noise}:
         noise_res = []
     plots = _plots(out, res_main, view_res, noise_res, methods)
-    pd = (plot_dir.rstrip("/") + "/") if plot_dir else ""
+    report = Path(markdown) if markdown is not None else out / "report.md"
+    rel = os.path.relpath(out.resolve(), report.resolve().parent)
+    pd = "" if rel == "." else rel.rstrip("/") + "/"
 
     md: list[str] = ["# Clutt3R benchmark", ""]
     ndiff = defaultdict(set)
@@ -426,12 +430,14 @@ def write_report(
         rows.append(row)
     md += ["## Per scene", "", "AP25 / AP50 (number of predicted instances); occlusion in percent; GT = objects.", "",
            _table(["scene", "occl.", "GT"] + [_NAMES.get(m, m) for m in methods], rows), ""]
+    if notes.strip():
+        md += [notes.strip(), ""]
     md += ["## Not in this suite", "",
            "Language-grounded 3D semantic IoU (paper Table II): the metric exists "
            "(`clutt3r_core.evaluation.metrics.semantic_iou`, tested on hand-made cases) but the language "
            "backend does not, so no method is scored on it here.", ""]
 
-    report = out / "report.md"
+    report.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(report, "\n".join(md).encode())
     payload = {"schema_version": 1, "code_version": code_version(), "command": command,
                "elapsed_seconds": None if math.isnan(elapsed) else elapsed, "workers": workers,

@@ -54,6 +54,7 @@ __all__ = [
     "plan_jobs",
     "run_benchmark",
     "run_job",
+    "job_key",
     "code_version",
     "bench_command",
 ]
@@ -176,14 +177,24 @@ class Setting:
 
 @dataclass(frozen=True)
 class Job:
+    """One (scene, method, setting). ``key`` is fixed when the job is planned (``plan_jobs``):
+    the code may change while a long run is going on (other work in the same tree), and a
+    result must come back under the key it was asked for."""
+
     scene: SceneSpec
     method: str
     setting: Setting
     cache_dir: str
+    key: str = ""
 
-    @property
-    def key(self) -> str:
-        return _sha([self.scene.identity, self.method, _method_config(self.method), asdict(self.setting), code_version()])
+    def __post_init__(self) -> None:
+        if not self.key:
+            object.__setattr__(self, "key", job_key(self.scene, self.method, self.setting))
+
+
+def job_key(scene: SceneSpec, method: str, setting: Setting, version: str | None = None) -> str:
+    """Content hash of a job: scene identity, method config, setting and code version."""
+    return _sha([scene.identity, method, _method_config(method), asdict(setting), version or code_version()])
 
 
 @dataclass(frozen=True)
@@ -437,12 +448,12 @@ def plan_jobs(
 ) -> list[Job]:
     """Every (scene, method, setting); a setting's mask noise selects the scene variant."""
     jobs = []
+    version = code_version()
     for st in settings:
         for sc in scenes:
             spec = sc.with_noise(st.mask_noise)
             for m in methods:
-                _method_config(m)  # unknown names fail before any work
-                jobs.append(Job(spec, m, st, str(cache_dir)))
+                jobs.append(Job(spec, m, st, str(cache_dir), job_key(spec, m, st, version)))  # unknown method raises
     return jobs
 
 
@@ -488,7 +499,7 @@ def run_benchmark(
 
 
 def bench_command(
-    out: Path = Path("bench-out"),
+    out: Path = Path("out/bench"),
     suite: Literal["standard", "quick", "tiny"] = "standard",
     per_difficulty: int = 0,
     scenes_dir: Path | None = None,
@@ -500,7 +511,9 @@ def bench_command(
     height: int = 0,
     seed0: int = 0,
     workers: int = 2,
-    cache: Path = Path(".clutt3r-cache/bench"),
+    cache: Path = Path(".bench-cache"),
+    markdown: Path | None = None,
+    notes: Path | None = None,
     progress: bool = True,
 ) -> None:
     """Benchmark 3D instance segmentation: our method, its ablations and the baselines.
@@ -524,6 +537,9 @@ def bench_command(
         seed0: first seed of the generated scenes.
         workers: worker processes (1 = run serially in this process).
         cache: cache folder for scenes and finished jobs.
+        markdown: where to write the Markdown report (default OUT/report.md); plot links are
+            relative to it (e.g. --out docs/benchmark --markdown docs/benchmark.md).
+        notes: a Markdown file whose text is inserted after the tables (hand-written analysis).
         progress: show progress bars.
     """
     import shlex
@@ -553,5 +569,6 @@ def bench_command(
     results = run_benchmark(jobs, executor, progress=progress)
     elapsed = time.perf_counter() - t0
     command = "clutt3r bench " + " ".join(shlex.quote(a) for a in sys.argv[2:]) if len(sys.argv) > 1 and sys.argv[1] == "bench" else ""
-    path = write_report(results, out, command=command, elapsed=elapsed, workers=workers, main=main)
+    path = write_report(results, out, command=command, elapsed=elapsed, workers=workers, main=main, markdown=markdown,
+                        notes=notes.read_text() if notes is not None and notes.is_file() else "")
     print(f"{len(results)} jobs ({sum(r.cached for r in results)} cached) in {elapsed:.0f} s -> {path}")
