@@ -230,21 +230,38 @@ def _backproject_strided(view: View, stride: int, cfg: PointCloudConfig) -> tupl
     return pw, vs * cam.width + us
 
 
-# Largest dense voxel grid indexed directly (ours: 2^24 cells = 64 MB of int32 lookup,
-# about (1.3 m)^3 at 5 mm); bigger scenes fall back to sorting the voxel keys.
+# Largest dense grid indexed directly (ours: 2^24 cells = 16 MB of bool marks plus
+# 64 MB of int32 lookup); bigger scenes fall back to sorting the voxel keys.
 _DENSE_GRID_CELLS = 1 << 24
 
 
-def _group_keys(lin: np.ndarray, ncells: int) -> tuple[np.ndarray, np.ndarray]:
-    """Group packed voxel keys: (inverse (P,) int64 into the sorted unique keys, counts (U,) int64)."""
-    if ncells <= _DENSE_GRID_CELLS:
-        # Counting on a dense grid is O(P + cells) and avoids sorting millions of keys;
-        # it yields the same sorted order as np.unique.
-        cnt = np.bincount(lin, minlength=ncells)
-        occupied = np.flatnonzero(cnt)
-        lut = np.empty(ncells, dtype=np.int64)
-        lut[occupied] = np.arange(len(occupied))
-        return lut[lin], cnt[occupied]
+def _compact(lin: np.ndarray, ncells: int) -> tuple[np.ndarray, int]:
+    """Rank of each key among the distinct keys of ``lin`` (values in 0..ncells-1), by
+    marking a dense bool grid: O(P + cells), no sort. Returns ((P,) int32, distinct count)."""
+    occ = np.zeros(ncells, dtype=bool)
+    occ[lin] = True
+    occupied = np.flatnonzero(occ)
+    lut = np.empty(ncells, dtype=np.int32)
+    lut[occupied] = np.arange(len(occupied), dtype=np.int32)
+    return lut[lin], len(occupied)
+
+
+def _group_keys(keys: list[np.ndarray], ext: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Group integer voxel keys (three (P,) int64 columns in 0..ext-1).
+
+    Returns (inverse (P,) int64 into the distinct voxels, counts (U,) int64), voxels in
+    the sorted order of the packed key x + ex * (y + ey * z), as np.unique would give.
+    Two dense passes: (x, y) columns first (a tabletop scene occupies few of them),
+    then (column, z), whose rank order is the same (z, y, x) order.
+    """
+    ex, ey, ez = (int(e) for e in ext)
+    if ex * ey <= _DENSE_GRID_CELLS:
+        col, ncol = _compact(keys[0] + ex * keys[1], ex * ey)
+        if ncol * ez <= _DENSE_GRID_CELLS:
+            inv, u = _compact(col.astype(np.int64) + ncol * keys[2], ncol * ez)
+            inverse = inv.astype(np.int64)
+            return inverse, np.bincount(inverse, minlength=u)
+    lin = keys[0] + ex * (keys[1] + ey * keys[2])
     _, inverse, counts = np.unique(lin, return_inverse=True, return_counts=True)
     return inverse.reshape(-1), counts
 
@@ -266,7 +283,7 @@ def fuse_views(views: Sequence[View], cfg: PointCloudConfig = PointCloudConfig()
         s = cfg.pixel_stride or auto_stride(view.camera.height, view.camera.width)
         pw, pix = _backproject_strided(view, s, cfg)
         pts_list.append(pw)
-        col_list.append(view.rgb.reshape(-1, 3)[pix])
+        col_list.append(np.take(view.rgb.reshape(-1, 3), pix, axis=0))
         pix_list.append(pix)
         strides.append(s)
     offsets = np.concatenate([[0], np.cumsum([len(p) for p in pix_list])])
@@ -275,15 +292,19 @@ def fuse_views(views: Sequence[View], cfg: PointCloudConfig = PointCloudConfig()
 
     # Integer voxel keys packed into one int64, then grouped.
     if len(P):
-        keys = np.floor(P * np.float32(1.0 / cfg.voxel_size)).astype(np.int64)
-        keys -= keys.min(axis=0)
-        ext = keys.max(axis=0) + 1
+        # One contiguous column at a time: reductions along axis 0 of a (P, 3) array are slow.
+        inv_size = np.float32(1.0 / cfg.voxel_size)
+        keys = []
+        for a in range(3):
+            k = np.floor(P[:, a] * inv_size).astype(np.int64)
+            k -= k.min()
+            keys.append(k)
+        ext = np.array([k.max() + 1 for k in keys], dtype=np.int64)
         ncells = float(np.prod(ext.astype(np.float64)))
         if ncells >= 2.0**62:
             raise SceneError(f"fused scene spans {ext.tolist()} voxels, too large to index (check depth and poses)")
-        lin = keys[:, 0] + ext[0] * (keys[:, 1] + ext[1] * keys[:, 2])
+        inverse, counts = _group_keys(keys, ext)
         del keys
-        inverse, counts = _group_keys(lin, int(ncells))
     else:
         inverse = np.zeros(0, np.int64)
         counts = np.zeros(0, np.int64)
