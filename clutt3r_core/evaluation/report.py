@@ -126,7 +126,8 @@ def _plots(out: Path, main_res, view_res, noise_res, methods: list[str]) -> list
         for ax, metric, title in zip(axes, ("ap25", "ap50", "ap"), ("AP@25", "AP@50", "AP (50:95)")):
             for m in methods:
                 ys = [summ.get((m, d), {}).get(metric, np.nan) for d in diffs]
-                ax.plot(diffs, ys, "o-", label=_NAMES.get(m, m), color=colors.get(m), lw=2.5 if m == "ours" else 1.5)
+                ax.plot(diffs, ys, "o--" if m == "no-substitution" else "o-", label=_NAMES.get(m, m),
+                        color=colors.get(m), lw=2.5 if m == "ours" else 1.5, zorder=3 if m == "no-substitution" else 2)
             ax.set_title(title)
             ax.set_ylim(0, 100)
             ax.grid(alpha=0.3)
@@ -231,6 +232,8 @@ def write_report(
     view_res = [r for r in results if r.mask_noise == main.mask_noise and r.scene in sweep_scenes]
     noise_res = [r for r in results if r.views == main.views and r.scene in sweep_scenes
                  and r.method in {x.method for x in results if x.mask_noise != main.mask_noise}]
+    swept = {r.method for r in view_res if r.views != main.views}
+    view_res = [r for r in view_res if r.method in swept]  # methods run at one view count only are in Table I
     if not {r.views for r in view_res} - {main.views}:
         view_res = []
     if not {r.mask_noise for r in noise_res} - {main.mask_noise}:
@@ -250,7 +253,8 @@ def write_report(
         + f"); main setting {main.views} views, `{main.mask_noise}` mask candidates. "
         f"Jobs: {len(results)} ({sum(r.cached for r in results)} from cache). "
         f"Wall time of this run: {_f(elapsed / 60, 1)} min with {workers} worker(s) on "
-        f"{os.cpu_count()} CPU(s) ({platform.processor() or platform.machine()}). Code version `{code_version()}`.",
+        f"{os.cpu_count()} CPU(s) ({platform.processor() or platform.machine()}). Code version of the results: "
+        + ", ".join(f"`{v}`" for v in sorted({r.code_version for r in results} - {""})) + ".",
         "",
     ]
     if command:

@@ -23,6 +23,7 @@ JSON, PNG plots) is written by ``evaluation/report.py``.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -127,8 +128,12 @@ def _source_hash(paths: Iterable[Path]) -> str:
 _PKG = Path(__file__).resolve().parents[1]
 
 
+@functools.lru_cache(maxsize=1)
 def code_version() -> str:
-    """Hash of the package sources that decide a result (everything but the runner and report)."""
+    """Hash of the package sources that decide a result (everything but the runner and report).
+
+    Computed once per process, close to when the modules were imported: the tree may be
+    edited while a long run goes on, and a worker keeps running the code it imported."""
     skip = {_PKG / "evaluation" / "runner.py", _PKG / "evaluation" / "report.py"}
     return _source_hash(p for p in _PKG.rglob("*.py") if p not in skip)
 
