@@ -271,10 +271,18 @@ def _knn_edges(points: np.ndarray, k: int, max_dist: float) -> tuple[np.ndarray,
 
 
 def _components(n: int, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    from scipy.sparse import coo_matrix
+    from scipy.sparse import csr_matrix
     from scipy.sparse.csgraph import connected_components
 
-    g = coo_matrix((np.ones(len(src), np.int8), (src, dst)), shape=(n, n)).tocsr()
+    # CSR built directly (rows by a stable sort of src, a no-op for the k-NN edges, which
+    # come sorted): COO -> CSR would also sort every row and sum repeats, which
+    # connectivity does not need. Component labels depend only on the edge set.
+    if len(src) > 1 and np.any(src[1:] < src[:-1]):
+        order = np.argsort(src, kind="stable")
+        dst = dst[order]
+    indptr = np.zeros(n + 1, np.int64)
+    np.cumsum(np.bincount(src, minlength=n), out=indptr[1:])
+    g = csr_matrix((np.ones(len(dst), np.int8), dst, indptr), shape=(n, n))
     return connected_components(g, directed=False)[1]
 
 
