@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import io
 import json
-import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -38,7 +37,7 @@ from clutt3r_core.segmentation.grouping import (
     semantic_similarity,
     spatial_similarity,
 )
-from clutt3r_core.segmentation.trace import StageTiming, Trace, load_trace, save_trace
+from clutt3r_core.segmentation.trace import StageClock, Trace, load_trace, save_trace
 from clutt3r_core.segmentation.trees import InstanceTree, TreeConfig, build_instance_tree
 from clutt3r_core.segmentation.vote import VoteConfig, supervoxel_vote
 from clutt3r_core.supervoxels import SuperVoxelConfig, build_supervoxels
@@ -134,23 +133,6 @@ class Segmentation:
         return self.trace.grouping.groups[int(self.trace.vote.instance_group[k])]
 
 
-class _Timer:
-    def __init__(self) -> None:
-        self.items: list[StageTiming] = []
-
-    def __call__(self, stage: str):
-        timer = self
-
-        class _Ctx:
-            def __enter__(self):
-                self.t0 = time.perf_counter()
-
-            def __exit__(self, *exc):
-                timer.items.append(StageTiming(stage, time.perf_counter() - self.t0))
-
-        return _Ctx()
-
-
 def _check_views(scene: Scene) -> None:
     if not scene.initial:
         raise SceneError(f"{scene.name or 'scene'}: no initial views to segment")
@@ -169,7 +151,7 @@ def segment(
 ) -> Segmentation:
     """Segment the initial views of ``scene`` into 3D instances (Sec. III-A, III-B)."""
     _check_views(scene)
-    timer = _Timer()
+    timer = StageClock()
     embedder = embedder or create_embedder(config.embedder)
     # canonical view order (by frame) so that the result does not depend on input order
     views = sorted(scene.initial_views, key=lambda v: v.frame)

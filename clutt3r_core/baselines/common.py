@@ -13,7 +13,6 @@ are dropped), so the instance output is the same form as ``Segmentation``.
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -22,7 +21,7 @@ import scipy.sparse as sp
 
 from clutt3r_core.errors import SceneError
 from clutt3r_core.scene import Scene
-from clutt3r_core.segmentation.trace import StageTiming
+from clutt3r_core.segmentation.trace import StageClock, StageTiming
 
 __all__ = ["Prediction", "MaskEvidence", "mask_evidence", "assign_by_majority", "StageClock"]
 
@@ -61,23 +60,6 @@ class Prediction:
         return len(self.scores)
 
 
-class StageClock:
-    """Collects (stage, seconds) like the pipeline's timer: ``with clock("name"): ...``."""
-
-    def __init__(self) -> None:
-        self.items: list[StageTiming] = []
-
-    def __call__(self, stage: str):
-        clock = self
-
-        class _Ctx:
-            def __enter__(self):
-                self.t0 = time.perf_counter()
-
-            def __exit__(self, *exc):
-                clock.items.append(StageTiming(stage, time.perf_counter() - self.t0))
-
-        return _Ctx()
 
 
 @dataclass(frozen=True, eq=False)

@@ -8,6 +8,9 @@ from __future__ import annotations
 
 import io
 import json
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -19,7 +22,7 @@ from clutt3r_core.segmentation.grouping import GroupingResult, MergeStep, NodeTa
 from clutt3r_core.segmentation.trees import InstanceTree
 from clutt3r_core.segmentation.vote import VoteResult
 
-__all__ = ["StageTiming", "Trace", "save_trace", "load_trace", "TRACE_VERSION"]
+__all__ = ["StageTiming", "StageClock", "Trace", "save_trace", "load_trace", "TRACE_VERSION"]
 
 TRACE_VERSION = 1
 
@@ -28,6 +31,21 @@ TRACE_VERSION = 1
 class StageTiming:
     stage: str
     seconds: float
+
+
+class StageClock:
+    """Collects StageTiming items: ``with clock("name"): ...`` (the pipeline and the baselines)."""
+
+    def __init__(self) -> None:
+        self.items: list[StageTiming] = []
+
+    @contextmanager
+    def __call__(self, stage: str) -> Iterator[None]:
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.items.append(StageTiming(stage, time.perf_counter() - t0))
 
 
 @dataclass(frozen=True, eq=False)
