@@ -21,6 +21,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Literal
 
+from tyro.conf import Positional
+
 import numpy as np
 
 from clutt3r_core.embeddings import MaskEmbedder, create_embedder
@@ -160,23 +162,24 @@ def segment(
         from tqdm import tqdm
 
         bar = tqdm(total=6, desc=f"segment {scene.name}", unit="stage", leave=False)
+        bar.set_postfix_str("pointcloud")
 
-    def tick(name: str) -> None:
+    def tick(next_stage: str) -> None:
         if bar is not None:
-            bar.set_postfix_str(name)
             bar.update(1)
+            bar.set_postfix_str(next_stage)
 
     with timer("pointcloud"):
         cloud = fuse_views(views, config.pointcloud)
-    tick("pointcloud")
+    tick("supervoxels")
     with timer("supervoxels"):
         sv = build_supervoxels(cloud, config.supervoxels)
-    tick("supervoxels")
+    tick("trees")
 
     with timer("trees"):
         trees = tuple(build_instance_tree(v.masks, v.frame, config.trees) for v in views)
         nodes_masks, nodes = _node_table(views, trees)
-    tick("trees")
+    tick("occupancy")
 
     with timer("occupancy"):
         occ_parts, bg_parts = [], []
@@ -190,7 +193,7 @@ def segment(
         occupancy = np.concatenate(occ_parts, axis=0) if occ_parts else np.zeros((0, sv.num), np.float32)
         background = np.concatenate(bg_parts) if bg_parts else np.zeros(0, bool)
         nodes = NodeTable(nodes.frame, nodes.view, nodes.mask_id, nodes.parent, nodes.is_leaf, background)
-    tick("occupancy")
+    tick("embeddings + leaf graph")
 
     with timer("embeddings"):
         emb = [embedder.embed_masks(v.rgb, m) for v, m in zip(views, nodes_masks)]
@@ -206,7 +209,7 @@ def segment(
         s_spat[no_edge] = np.nan
         s_sem[no_edge] = np.nan
         sim = SimilarityGraph(s_spat, s_sem)
-    tick("leaf_graph")
+    tick("grouping + vote")
 
     with timer("grouping"):
         grouping = run_grouping(nodes, sim, len(views), config.grouping)
@@ -215,7 +218,7 @@ def segment(
             grouping.groups, occupancy, sv.counts, sv.support, s_spat, len(views), config.vote
         )
         instance = vote.sv_label[sv.labels]
-    tick("grouping+vote")
+    tick("done")
     if bar is not None:
         bar.close()
 
@@ -382,7 +385,7 @@ def load_run(folder: str | Path) -> Segmentation:
 
 
 def segment_command(
-    scene: Path,
+    scene: Positional[Path],
     out: Path,
     config: SegmentConfig = SegmentConfig(),
     preset: Literal["", "default", "paper", "no-spatial", "no-substitution"] = "",
