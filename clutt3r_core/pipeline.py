@@ -75,9 +75,10 @@ class SegmentConfig:
 
 def _paper_literal() -> SegmentConfig:
     # The paper's text without our additions: occupancy over all voxels of a super-voxel,
-    # no coverage guard, no support handling in the vote.
+    # no coverage guard, no support handling in the vote, no overlap gate on stage 2.
     return SegmentConfig(
         occupancy=OccupancyConfig(normalise="all"),
+        grouping=GroupingConfig(semantic_needs_overlap=False),
         vote=VoteConfig(min_coverage=0.0, label_support=True),
     )
 

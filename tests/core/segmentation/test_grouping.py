@@ -163,20 +163,37 @@ def test_identical_masks_never_share_a_group():
 
 
 def test_semantic_stage_merges_whole_groups():
-    # two halves of an object seen from opposite sides share no super-voxel but look alike
+    # two halves of an object seen from opposite sides share only a rim super-voxel (3) but look alike
     spec = [
-        (0, 1, None, occ(0, 1)),
-        (1, 1, None, occ(0, 1)),
-        (2, 1, None, occ(2, 3)),
-        (3, 1, None, occ(2, 3)),
+        (0, 1, None, occ(0, 1, 3)),
+        (1, 1, None, occ(0, 1, 3)),
+        (2, 1, None, occ(2, 3, 4)),
+        (3, 1, None, occ(2, 3, 4)),
     ]
     emb = np.tile(np.array([[1.0, 0.0]], np.float32), (4, 1))
     nodes, sim, O, idx, V = build(spec, emb=emb)
     res = run_grouping(nodes, sim, V, GroupingConfig())
     assert as_keys(res, nodes) == [((0, 1), (1, 1), (2, 1), (3, 1))]
     assert [m.stage for m in res.merges] == ["spatial", "spatial", "semantic"]
+    assert 0 < res.merges[-1].spatial < 0.5
     no_sem = run_grouping(nodes, sim, V, GroupingConfig(use_semantic=False))
     assert len(no_sem.groups) == 2
+
+
+def test_semantic_stage_never_joins_look_alikes_that_share_no_super_voxel():
+    # two same-coloured objects far apart: S_semantic 1, S_spatial exactly 0
+    spec = [
+        (0, 1, None, occ(0, 1)),
+        (1, 1, None, occ(0, 1)),
+        (2, 1, None, occ(6, 7)),
+        (3, 1, None, occ(6, 7)),
+    ]
+    emb = np.tile(np.array([[1.0, 0.0]], np.float32), (4, 1))
+    nodes, sim, O, idx, V = build(spec, emb=emb)
+    res = run_grouping(nodes, sim, V, GroupingConfig())
+    assert len(res.groups) == 2 and all(m.stage == "spatial" for m in res.merges)
+    literal = run_grouping(nodes, sim, V, GroupingConfig(semantic_needs_overlap=False))
+    assert len(literal.groups) == 1 and literal.merges[-1].stage == "semantic"
 
 
 def test_empty_input():
