@@ -65,6 +65,7 @@ __all__ = [
     "CorrectedLabels",
     "LogEntry",
     "CorrectionLogWarning",
+    "CorrectionLogLocked",
     "active_edits",
     "apply",
     "op_to_json",
@@ -82,6 +83,10 @@ _VERSION = 1
 
 class CorrectionLogWarning(UserWarning):
     """A torn last line of a correction log was found and ignored (the message names file and line)."""
+
+
+class CorrectionLogLocked(SceneFileError):
+    """Another live process holds the correction log of this run for writing."""
 
 
 def _int_tuple(values, what: str) -> tuple[int, ...]:
@@ -633,7 +638,7 @@ class Annotations:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             os.close(fd)
-            raise SceneFileError(self.log_path, "is being edited by another process (locked)") from None
+            raise CorrectionLogLocked(self.log_path, "is being edited by another process (locked)") from None
         except ImportError:  # no flock on this platform: single-writer is then the user's job
             pass
         self._fd = fd

@@ -82,7 +82,10 @@ def start(
     else:
         p = Path(src)
         if is_run_dir(p):
-            app.set_data(finish(load_viewer_data(p, scene)))
+            from clutt3r_viewer.edit import open_annotations
+
+            data = finish(load_viewer_data(p, scene))
+            app.set_data(data, annotations=open_annotations(p, data.seg))
         elif is_scene_dir(p):
             from clutt3r_core.io import load_scene
 

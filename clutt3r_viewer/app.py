@@ -168,6 +168,7 @@ class SessionState:
     grasp: int = -1
     update: int = -1
     playing: bool = False
+    edit_instance: int = -1
 
 
 class Session:
@@ -186,6 +187,7 @@ class Session:
         self.view_nodes: list = []
         self.frustums: list = []
         self.colour_updates = 0
+        self.edit_panel = None
 
     # -- setup ------------------------------------------------------------------------
 
@@ -301,16 +303,17 @@ class Session:
         elif st.color_mode == "rgb":
             col = seg.colors[idx].copy()
         elif st.color_mode == "confidence":
-            inst = seg.instance[idx]
+            inst = self.app.instance_labels()[idx]
+            scores = self.app.instance_scores()
             col = np.tile(GREY, (len(idx), 1))
             has = inst >= 0
-            hi = float(seg.scores.max()) if len(seg.scores) else 1.0
-            col[has] = ramp_colors(seg.scores[inst[has]], 0.0, hi)
+            hi = float(scores.max()) if len(scores) else 1.0
+            col[has] = ramp_colors(scores[inst[has]], 0.0, hi)
         elif st.color_mode == "replay":
             lab = d.replay_sv_group(st.event)[seg.sv_labels[idx]]
             col = label_colors(lab)
         else:
-            col = label_colors(seg.instance[idx])
+            col = label_colors(self.app.instance_labels()[idx])  # corrected labels when the run has edits
         if st.node >= 0:
             sel = d.node_points(st.node)[idx]
             col = (col * 0.35).astype(np.uint8)
@@ -392,6 +395,11 @@ class Session:
                 h["query_go"].on_click(lambda ev: self.run_query(h["query"].value))
                 h["query"].on_update(lambda ev: self.run_query(h["query"].value))
                 h["query_md"] = gui.add_markdown(f"_text embedder: `{self.app.text_embedder.name}`_")
+        if self.app.annotations is not None:
+            with tabs.add_tab("Edit"):
+                from clutt3r_viewer.edit import EditPanel
+
+                self.edit_panel = EditPanel(self)
         if d.grasps is not None:
             with tabs.add_tab("Grasps"):
                 self._build_grasps()
@@ -408,11 +416,33 @@ class Session:
     def _instances_md(self) -> str:
         d = self.app.data
         seg = d.seg
+        ann = self.app.annotations
+        if ann is not None and ann.num_ops:  # corrected: masks are those of the original instance
+            lab = ann.current
+            lines = ["| inst | conf | category | points |", "|---|---|---|---|"]
+            npts = lab.point_counts()
+            for k in lab.alive:
+                lines.append(f"| I{k} | {lab.scores[k]:.2f} | {lab.categories[k]} | {int(npts[k])} |")
+            return "\n".join(lines)
         lines = ["| inst | conf | masks | points |", "|---|---|---|---|"]
         npts = np.bincount(seg.instance[seg.instance >= 0], minlength=seg.num_instances)
         for k in range(seg.num_instances):
             lines.append(f"| I{k} | {seg.scores[k]:.2f} | {len(seg.instance_nodes(k))} | {int(npts[k])} |")
         return "\n".join(lines)
+
+    def notify(self, title: str, body: str) -> None:
+        self.client.add_notification(title, body, auto_close_seconds=5.0)
+
+    def on_labels_changed(self) -> None:
+        """The run's corrected labels changed (an edit in any tab): recolour, refresh lists."""
+        with self.lock:
+            if not self.built or self.closed:
+                return
+            with self.client.atomic():
+                self.recolor()
+                self.h["instances"].content = self._instances_md()
+                if self.edit_panel is not None:
+                    self.edit_panel.refresh()
 
     def _toggle_frustums(self, on: bool) -> None:
         with self.client.atomic():
@@ -450,6 +480,8 @@ class Session:
                 self._refresh_image()
                 self._refresh_node_md()
                 self._refresh_neighbours()
+                if self.edit_panel is not None:
+                    self.edit_panel.select_node(int(i))
                 self.recolor()
 
     def set_color_mode(self, mode: str) -> None:
@@ -733,6 +765,8 @@ class ViewerApp:
         self.point_size = point_size
         self.play_interval = play_interval
         self.text_embedder = text_embedder
+        self.annotations = None  # clutt3r_core.annotations.Annotations of the run folder, when there is one
+        self._edit_lock = threading.Lock()
         self.sessions: dict[int, Session] = {}
         self._status = "loading"
         self._lock = threading.Lock()
@@ -760,9 +794,11 @@ class ViewerApp:
             if not s.built:
                 s.show_loading(text)
 
-    def set_data(self, data: ViewerData) -> None:
+    def set_data(self, data: ViewerData, annotations=None) -> None:
+        """Show ``data``; ``annotations`` (the run's ``Annotations``) adds the Edit tab and corrected colours."""
         with self._lock:
             self.data = data
+            self.annotations = annotations
             if self.text_embedder is not None and getattr(self.text_embedder, "dim", None) not in (None, data.trace.embeddings.shape[1]):
                 self.text_embedder = None  # a text space that is not the masks' space cannot rank them
             look, eye = default_camera(data)
@@ -771,6 +807,36 @@ class ViewerApp:
             sessions = list(self.sessions.values())
         for s in sessions:
             s.build()
+
+    def instance_labels(self) -> np.ndarray:
+        """(N,) int32 instance per point shown: the corrected labelling when the run has corrections."""
+        a = self.annotations
+        return a.current.instance if a is not None else self.data.seg.instance
+
+    def instance_scores(self) -> np.ndarray:
+        a = self.annotations
+        return a.current.scores if a is not None else self.data.seg.scores
+
+    def edit_run(self, action, session: "Session | None" = None, select_new: bool = False) -> bool:
+        """Apply ``action(annotations)`` (apply_op / undo / redo; logged and fsynced before it
+        returns), save the snapshot and refresh every tab. Call without holding a session lock."""
+        from clutt3r_viewer.edit import run_edit
+
+        if self.annotations is None:
+            return False
+        with self._edit_lock:
+            err = run_edit(self.annotations, action)
+            n = self.annotations.current.num_instances
+        if err is not None:
+            if session is not None:
+                session.notify("Edit refused", err)
+            return False
+        if select_new and session is not None:
+            with session.lock:
+                session.state.edit_instance = n - 1
+        for s in list(self.sessions.values()):
+            s.on_labels_changed()
+        return True
 
     def _on_connect(self, client) -> None:
         s = Session(self, client)
@@ -803,6 +869,8 @@ class ViewerApp:
             s.closed = True
             s.state.playing = False
         self.server.stop()
+        if self.annotations is not None:
+            self.annotations.close()  # every edit is already in the log; this releases its lock
 
     def compute_in_background(self, compute: Callable[[Callable[[str], None]], ViewerData]) -> threading.Thread:
         """Run ``compute(report)`` in a thread and show its data when done; ``report(text)`` updates the progress."""
