@@ -84,8 +84,13 @@ def start(
         if is_run_dir(p):
             from clutt3r_viewer.edit import open_annotations
 
-            data = finish(load_viewer_data(p, scene))
-            app.set_data(data, annotations=open_annotations(p, data.seg))
+            try:
+                data = finish(load_viewer_data(p, scene))
+                ann = open_annotations(p, data.seg)  # e.g. a log of another run: a clear error
+            except BaseException:
+                app.stop()
+                raise
+            app.set_data(data, annotations=ann)
         elif is_scene_dir(p):
             from clutt3r_core.io import load_scene
 

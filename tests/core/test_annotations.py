@@ -204,7 +204,7 @@ _edit = st.one_of(
 _action = st.one_of(_edit, st.just("undo"), st.just("redo"))
 
 
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(actions=st.lists(_action, max_size=14))
 def test_property_any_edit_undo_redo_sequence_replays_to_the_in_memory_state(actions):
     base = make_base()

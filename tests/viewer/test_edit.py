@@ -38,3 +38,26 @@ def test_options_status_and_node_instance_follow_the_corrections(tiny_data, tiny
         # a second viewer on the same run while this one holds the log: read-only, not an error
         b = open_annotations(run, d.seg)
         assert b.readonly and b.current.equals(a.current)
+
+
+def test_viewer_refuses_a_correction_log_of_another_run(tiny_run_dir, tmp_path):
+    import pytest
+
+    import clutt3r_viewer
+    from clutt3r_core.annotations import LOG_NAME, Annotations, Delete
+    from clutt3r_core.errors import SceneFileError
+    from tests.viewer.conftest import free_port
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run_dir, run)
+    with Annotations.open(run) as a:
+        a.apply_op(Delete(0))
+    log = (run / LOG_NAME).read_bytes()
+    (run / LOG_NAME).write_bytes(log.replace(b'"instances_sha256":"', b'"instances_sha256":"0', 1))
+    port = free_port()
+    with pytest.raises(SceneFileError, match="different run"):
+        clutt3r_viewer.start(run, port=port)
+    import socket
+
+    with socket.socket() as s:  # the server of the failed start was stopped: its port is free again
+        s.bind(("127.0.0.1", port))

@@ -73,5 +73,21 @@ def test_edit_tab_merge_is_logged_at_once_and_undo_reverts_it(browser, edit_app,
     time.sleep(1.5)
     page.screenshot(path=str(artifacts / "viewer_edit_undone.png"))
     assert _colour_share(_canvas_shot(page), 0) > 0.8 * before, "undo did not bring instance 0 back"
+
+    # a tree node's super-voxels -> a new instance (the redo stack is cleared by the new edit)
+    d = app.data
+    leaf = int(next(i for i in d.view_nodes(0) if d.trace.nodes.is_leaf[i] and d.node_instance[i] >= 0))
+    _tab(page, "Tree")
+    page.get_by_role("button", name=sess.tree_buttons[leaf].label).first.click()
+    _wait(lambda: sess.state.node == leaf and sess.state.edit_instance == int(d.node_instance[leaf]),
+          what="node selection picks its instance")
+    _tab(page, "Edit")
+    page.get_by_role("button", name="Move node's super-voxels to a new instance").click()
+    _wait(lambda: len(_log(run)) == 3, what="the split in ops.jsonl")
+    assert _log(run)[2]["op"] == "split"
+    k = seg.num_instances
+    assert app.annotations.current.num_instances == k + 1 and (app.annotations.current.instance == k).any()
+    _wait(lambda: sess.state.edit_instance == k, what="the new instance selected")
+    assert not app.annotations.can_redo
     page.close()
     page2.close()
