@@ -15,6 +15,7 @@ from typing import Callable
 
 import numpy as np
 
+from clutt3r_viewer.assets import gripper_mesh, logo_data_uri
 from clutt3r_viewer.data import (  # noqa: I001
     GREY,
     PALETTE,
@@ -718,9 +719,14 @@ class Session:
                 return
             k = int(value.split(":")[0])
             self.state.grasp = k
-            self.h["grasp_sel"] = self.client.scene.add_line_segments(
-                "/grasps/selected", gripper_segments(g.poses[k], g.widths[k]), HIGHLIGHT, thickness=5.0,
-                thickness_units="screen")
+            mesh = gripper_mesh(g.poses[k], g.widths[k])
+            if mesh is not None:  # the gripper mesh of static/, fingers at this grasp's width
+                self.h["grasp_sel"] = self.client.scene.add_mesh_simple(
+                    "/grasps/selected", mesh[0], mesh[1], color=tuple(int(c) for c in HIGHLIGHT))
+            else:
+                self.h["grasp_sel"] = self.client.scene.add_line_segments(
+                    "/grasps/selected", gripper_segments(g.poses[k], g.widths[k]), HIGHLIGHT, thickness=5.0,
+                    thickness_units="screen")
 
 
 def gripper_segments(T: np.ndarray, width: float, depth: float = 0.05) -> np.ndarray:
@@ -771,7 +777,14 @@ class ViewerApp:
         self._status = "loading"
         self._lock = threading.Lock()
         self.server = viser.ViserServer(host=host, port=port, label="Clutt3R", verbose=verbose)
-        self.server.gui.configure_theme(control_width="large", show_share_button=False, brand_color=(230, 140, 20))
+        logo = logo_data_uri()
+        titlebar = None
+        if logo is not None:
+            titlebar = viser.theme.TitlebarConfig(
+                buttons=None, image=viser.theme.TitlebarImage(image_url_light=logo, image_url_dark=None,
+                                                              image_alt="Clutt3R", href=None))
+        self.server.gui.configure_theme(titlebar_content=titlebar, control_width="large", show_share_button=False,
+                                        brand_color=(230, 140, 20))
         self.server.scene.set_up_direction("+z")
         self.server.scene.world_axes.visible = False
         self.server.on_client_connect(self._on_connect)
