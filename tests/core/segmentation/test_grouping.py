@@ -196,6 +196,30 @@ def test_semantic_stage_never_joins_look_alikes_that_share_no_super_voxel():
     assert len(literal.groups) == 1 and literal.merges[-1].stage == "semantic"
 
 
+def test_reunion_joins_an_object_split_into_parts_in_two_views_only_when_enabled():
+    # object Y split into the same two halves in views 0 and 1, seen whole in views 2 and 3: the
+    # wholes join the left halves (S 0.5), and the one-mask-per-view rule keeps the right halves out
+    left, right = (4, 5, 6, 7), (8, 9, 10, 11)
+    spec = [
+        (0, 1, None, occ(*left)),
+        (0, 2, None, occ(*right)),
+        (1, 1, None, occ(*left)),
+        (1, 2, None, occ(*right)),
+        (2, 1, None, occ(*range(4, 12))),
+        (3, 1, None, occ(*range(4, 12))),
+    ]
+    nodes, sim, O, idx, V = build(spec)
+    plain = run_grouping(nodes, sim, V, GroupingConfig())
+    assert sorted(len(g) for g in plain.groups) == [2, 4]
+    res = run_grouping(nodes, sim, V, GroupingConfig(reunion_tau=0.25))
+    assert len(res.groups) == 1 and res.merges[-1].stage == "reunion"
+    assert res.merges[-1].score >= 0.25
+    # two different objects that share views and never overlap in 3D are never reunited
+    spec2 = [(f, m, None, occ(*(X if m == 1 else Y))) for f in range(3) for m in (1, 2)]
+    nodes2, sim2, _, _, V2 = build(spec2)
+    assert len(run_grouping(nodes2, sim2, V2, GroupingConfig(reunion_tau=0.25)).groups) == 2
+
+
 def test_empty_input():
     nodes = NodeTable(*(np.zeros(0, np.int32) for _ in range(4)), np.zeros(0, bool), np.zeros(0, bool))
     sim = SimilarityGraph(np.zeros((0, 0), np.float32), np.zeros((0, 0), np.float32))
