@@ -67,7 +67,8 @@ def test_edit_tab_merge_is_logged_at_once_and_undo_reverts_it(browser, edit_app,
     page.get_by_role("button", name="Undo").click()
     _wait(lambda: len(_log(run)) == 2, what="the undo in ops.jsonl")
     assert _log(run)[1]["op"] == "undo" and _log(run)[1]["target"] == 0
-    assert np.array_equal(app.annotations.current.instance, seg.instance)
+    # the log line is written (fsync) before the in-memory state moves: wait for the state too
+    _wait(lambda: np.array_equal(app.annotations.current.instance, seg.instance), what="undo applied in memory")
     assert app.annotations.can_redo and not app.annotations.can_undo
     _wait(lambda: page.get_by_text("0 edits", exact=False).count() >= 1, what="status after undo")
     time.sleep(1.5)
@@ -86,7 +87,8 @@ def test_edit_tab_merge_is_logged_at_once_and_undo_reverts_it(browser, edit_app,
     _wait(lambda: len(_log(run)) == 3, what="the split in ops.jsonl")
     assert _log(run)[2]["op"] == "split"
     k = seg.num_instances
-    assert app.annotations.current.num_instances == k + 1 and (app.annotations.current.instance == k).any()
+    _wait(lambda: app.annotations.current.num_instances == k + 1, what="split applied in memory")
+    assert (app.annotations.current.instance == k).any()
     _wait(lambda: sess.state.edit_instance == k, what="the new instance selected")
     assert not app.annotations.can_redo
     page.close()
