@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from clutt3r_core.errors import SceneError
+from clutt3r_core.segmentation.trees import subtree_leaves
 
 __all__ = [
     "GroupingConfig",
@@ -111,13 +112,7 @@ class NodeTable:
 
     def descendant_leaves(self) -> list[np.ndarray]:
         """For every node, the node indices of the leaves in its subtree (itself for a leaf)."""
-        out: list[list[int]] = [[] for _ in range(len(self))]
-        for leaf in np.flatnonzero(self.is_leaf):
-            j = leaf
-            while j >= 0:
-                out[j].append(int(leaf))
-                j = self.parent[j]
-        return [np.asarray(sorted(x), np.int64) for x in out]
+        return subtree_leaves(self.parent, self.is_leaf)
 
 
 @dataclass(frozen=True, eq=False)
@@ -208,6 +203,7 @@ class _Groups:
         self.members.sort(key=lambda g: g[0])
         self.s_spat = np.nan_to_num(s_spat, nan=0.0).astype(np.float64)
         self.s_sem = np.nan_to_num(s_sem, nan=0.0).astype(np.float64)
+        self.defined = np.isfinite(s_spat).astype(np.float64)  # leaf pairs that have an edge
         self.view = view
         self.n_views = n_views
         self._rebuild()
@@ -221,14 +217,14 @@ class _Groups:
             views[i, self.view[m]] = True
         self.sum_spat = memb @ self.s_spat @ memb.T
         self.sum_sem = memb @ self.s_sem @ memb.T
+        self.count = memb @ self.defined @ memb.T
         self.size = memb.sum(axis=1)
         self.views = views
 
     def valid(self, one_per_view: bool) -> np.ndarray:
         g = len(self.members)
         ok = ~np.eye(g, dtype=bool)
-        vi = self.views.astype(np.int32)
-        shared = (vi @ vi.T) > 0
+        shared = self.shared_views()
         if one_per_view:
             ok &= ~shared
         else:
@@ -237,8 +233,15 @@ class _Groups:
             ok &= ~(shared & single[:, None] & single[None, :])
         return np.triu(ok, 1)
 
-    def mean(self, which: int) -> np.ndarray:
+    def shared_views(self) -> np.ndarray:
+        vi = self.views.astype(np.int32)
+        return (vi @ vi.T) > 0
+
+    def mean(self, which: int, defined_only: bool = False) -> np.ndarray:
+        """Mean linkage over all member pairs, or (defined_only) over the pairs that have an edge."""
         s = self.sum_spat if which == STAGE_SPATIAL else self.sum_sem
+        if defined_only:
+            return np.divide(s, self.count, out=np.zeros_like(s), where=self.count > 0)
         return s / np.outer(self.size, self.size)
 
     def merge(self, i: int, j: int) -> None:
@@ -246,7 +249,7 @@ class _Groups:
         assert i < j
         self.members[i] = sorted(self.members[i] + self.members[j])
         del self.members[j]
-        for name in ("sum_spat", "sum_sem"):
+        for name in ("sum_spat", "sum_sem", "count"):
             s = getattr(self, name)
             s[i] += s[j]
             s[:, i] += s[:, j]
@@ -375,7 +378,8 @@ def run_grouping(nodes: NodeTable, sim: SimilarityGraph, n_views: int, cfg: Grou
             events += [("merge", len(merges) + k) for k in range(len(more))]
             merges += more
     if cfg.reunion_tau > 0:
-        groups, more = reunite_split_groups(groups, sim, nodes.view, cfg.reunion_tau, cfg.substitution_rounds + 1)
+        groups, more = reunite_split_groups(groups, sim, nodes.view, n_views, cfg.reunion_tau,
+                                             cfg.substitution_rounds + 1)
         events += [("merge", len(merges) + k) for k in range(len(more))]
         merges += more
     return GroupingResult(
@@ -387,7 +391,7 @@ def run_grouping(nodes: NodeTable, sim: SimilarityGraph, n_views: int, cfg: Grou
 
 
 def reunite_split_groups(
-    groups: list[list[int]], sim: SimilarityGraph, view: np.ndarray, tau: float, round_: int
+    groups: list[list[int]], sim: SimilarityGraph, view: np.ndarray, n_views: int, tau: float, round_: int
 ) -> tuple[list[list[int]], list[MergeStep]]:
     """Merge groups of one object that the one-mask-per-view rule kept apart (ours).
 
@@ -395,36 +399,20 @@ def reunite_split_groups(
     similarity is the mean S_spatial over their cross-view pairs (same-view pairs have no
     edge). Greedy, best pair first, as stage 1.
     """
-    members = sorted((sorted(g) for g in groups), key=lambda g: g[0])
-    u = len(view)
-    s_sp = np.nan_to_num(sim.s_spatial, nan=0.0).astype(np.float64)
-    s_se = np.nan_to_num(sim.s_semantic, nan=0.0).astype(np.float64)
-    defined = np.isfinite(sim.s_spatial).astype(np.float64)
+    state = _Groups(groups, sim.s_spatial, sim.s_semantic, view, n_views)
     steps: list[MergeStep] = []
-    while True:
-        g = len(members)
-        memb = np.zeros((g, u))
-        for i, m in enumerate(members):
-            memb[i, m] = 1.0
-        cnt = memb @ defined @ memb.T
-        mean_sp = np.divide(memb @ s_sp @ memb.T, cnt, out=np.zeros_like(cnt), where=cnt > 0)
-        mean_se = np.divide(memb @ s_se @ memb.T, cnt, out=np.zeros_like(cnt), where=cnt > 0)
-        vis = np.zeros((g, int(view.max(initial=-1)) + 1), np.int32)
-        for i, m in enumerate(members):
-            vis[i, view[m]] = 1
-        shared = (vis @ vis.T) > 0
-        big = np.array([len(m) >= 2 for m in members])
-        ok = np.triu(shared & big[:, None] & big[None, :] & (cnt > 0), 1)
+    while len(state.members) > 1:
+        big = state.size >= 2
+        ok = np.triu(state.shared_views() & big[:, None] & big[None, :] & (state.count > 0), 1)
+        mean_sp = state.mean(STAGE_SPATIAL, defined_only=True)
         score = np.where(ok, mean_sp, -np.inf)
-        if not g or not np.isfinite(score).any():
-            break
         flat = int(np.argmax(score))
         best = score.flat[flat]
-        if best < tau:
+        if not np.isfinite(best) or best < tau:
             break
-        i, j = divmod(flat, g)
-        steps.append(MergeStep(stage="reunion", round=round_, a=tuple(members[i]), b=tuple(members[j]),
-                               score=float(best), spatial=float(mean_sp[i, j]), semantic=float(mean_se[i, j])))
-        members[i] = sorted(members[i] + members[j])
-        del members[j]
-    return members, steps
+        i, j = divmod(flat, score.shape[1])
+        steps.append(MergeStep(stage="reunion", round=round_, a=tuple(state.members[i]), b=tuple(state.members[j]),
+                               score=float(best), spatial=float(mean_sp[i, j]),
+                               semantic=float(state.mean(STAGE_SEMANTIC, defined_only=True)[i, j])))
+        state.merge(i, j)
+    return state.members, steps

@@ -27,7 +27,7 @@ import numpy as np
 from clutt3r_core.errors import SceneError
 from clutt3r_core.scene import MaskCandidates
 
-__all__ = ["TreeConfig", "InstanceTree", "build_instance_tree", "mask_overlaps", "mask_codes"]
+__all__ = ["TreeConfig", "InstanceTree", "build_instance_tree", "mask_overlaps", "mask_codes", "subtree_leaves"]
 
 
 @dataclass(frozen=True)
@@ -85,31 +85,21 @@ class InstanceTree:
             raise KeyError(f"frame {self.frame} has no mask {mask_id} in its tree")
         return int(hit[0])
 
-    def children(self, i: int) -> np.ndarray:
-        return np.flatnonzero(self.parent == i)
-
-    def depth(self) -> np.ndarray:
-        """(M,) int: 0 for roots."""
-        d = np.zeros(len(self.mask_ids), int)
-        for i in range(len(d)):
-            j = self.parent[i]
-            while j >= 0:
-                d[i] += 1
-                j = self.parent[j]
-        return d
-
     def descendant_leaves(self, i: int) -> np.ndarray:
         """Indices of the leaves in the subtree of node i (i itself if it is a leaf)."""
-        leaves = np.flatnonzero(self.is_leaf)
-        out = []
-        for leaf in leaves:
-            j = leaf
-            while j >= 0:
-                if j == i:
-                    out.append(leaf)
-                    break
-                j = self.parent[j]
-        return np.asarray(out, dtype=np.int64)
+        return subtree_leaves(self.parent, self.is_leaf)[i]
+
+
+def subtree_leaves(parent: np.ndarray, is_leaf: np.ndarray) -> list[np.ndarray]:
+    """For every node of a forest (parent index, -1 = root), the sorted leaf indices below it
+    (itself for a leaf): each leaf is walked up to its root once."""
+    out: list[list[int]] = [[] for _ in range(len(parent))]
+    for leaf in np.flatnonzero(is_leaf):
+        j = int(leaf)
+        while j >= 0:
+            out[j].append(int(leaf))
+            j = int(parent[j])
+    return [np.asarray(sorted(x), np.int64) for x in out]
 
 
 def _pack16(flat: np.ndarray) -> np.ndarray:
