@@ -1,8 +1,9 @@
 """Mask embedders: the pluggable source of S_semantic (Sec. III-B.2, eq. 3).
 
 The paper embeds each mask with Duoduo CLIP. Backends sit behind the small
-``MaskEmbedder`` protocol and a registry; heavy imports happen inside factories,
-and a missing optional package fails at construction naming the extra to install.
+``MaskEmbedder`` / ``TextEmbedder`` protocols in the core's one registry
+(``clutt3r_core/registry.py``); heavy imports happen inside factories, and a missing
+optional package fails at construction naming the extra to install.
 
 Built in: ``appearance-hsv``, a documented appearance descriptor (no language
 model): a joint hue x saturation histogram plus a value histogram of the masked
@@ -18,14 +19,21 @@ from typing import Callable, Protocol, runtime_checkable
 
 import numpy as np
 
-from clutt3r_core.errors import Clutt3rError
 
-__all__ = ["MaskEmbedder", "register_embedder", "create_embedder", "available_embedders", "AppearanceEmbedder"]
+__all__ = [
+    "MaskEmbedder",
+    "TextEmbedder",
+    "register_embedder",
+    "create_embedder",
+    "available_embedders",
+    "has_text",
+    "AppearanceEmbedder",
+]
 
 
 @runtime_checkable
 class MaskEmbedder(Protocol):
-    """Embeds image regions (and, for language backends, text) into one unit-norm space."""
+    """Embeds image regions into a unit-norm space (registry kind ``mask_embedder``)."""
 
     name: str
     dim: int
@@ -35,26 +43,44 @@ class MaskEmbedder(Protocol):
         (a zero row for an empty mask)."""
         ...
 
+
+@runtime_checkable
+class TextEmbedder(Protocol):
+    """Embeds text into the same space as a mask embedder of the same name (registry kind
+    ``text_embedder``); a language backend registers under both kinds."""
+
+    name: str
+    dim: int
+
     def embed_text(self, texts: list[str]) -> np.ndarray:
-        """-> (T, dim) float32 unit rows. Raises NotImplementedError for image-only backends."""
+        """-> (T, dim) float32 unit rows."""
         ...
 
 
-_REGISTRY: dict[str, Callable[..., MaskEmbedder]] = {}
+def register_embedder(name: str, factory: Callable[..., MaskEmbedder] | str, *, text: bool = False, **kw) -> None:
+    """Register a mask embedder (and, with ``text=True``, the same factory as a text embedder)."""
+    from clutt3r_core.registry import register_backend
 
-
-def register_embedder(name: str, factory: Callable[..., MaskEmbedder]) -> None:
-    _REGISTRY[name] = factory
+    register_backend("mask_embedder", name, factory, **kw)
+    if text:
+        register_backend("text_embedder", name, factory, **kw)
 
 
 def available_embedders() -> tuple[str, ...]:
-    return tuple(sorted(_REGISTRY))
+    from clutt3r_core.registry import backend_names
+
+    return tuple(sorted(backend_names("mask_embedder")))
 
 
 def create_embedder(name: str, **kwargs) -> MaskEmbedder:
-    if name not in _REGISTRY:
-        raise Clutt3rError(f"unknown embedder '{name}'; available: {', '.join(available_embedders())}")
-    return _REGISTRY[name](**kwargs)
+    from clutt3r_core.registry import create_backend
+
+    return create_backend("mask_embedder", name, **kwargs)
+
+
+def has_text(embedder: object) -> bool:
+    """Whether an embedder can also embed text (implements ``TextEmbedder``)."""
+    return isinstance(embedder, TextEmbedder)
 
 
 @dataclass(frozen=True)
@@ -106,8 +132,3 @@ class AppearanceEmbedder:
         np.divide(hist, norm, out=hist, where=norm > 0)
         return hist.astype(np.float32)
 
-    def embed_text(self, texts: list[str]) -> np.ndarray:
-        raise NotImplementedError("the appearance-hsv embedder has no text encoder; use a language backend")
-
-
-register_embedder("appearance-hsv", AppearanceEmbedder)

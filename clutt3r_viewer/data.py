@@ -16,7 +16,9 @@ import numpy as np
 
 from clutt3r_core.errors import SceneError
 from clutt3r_core.pipeline import Segmentation
-from clutt3r_core.scene import Camera, Scene, View
+from clutt3r_core.grasping import GraspSet
+from clutt3r_core.scene import Scene, View
+from clutt3r_core.update import UpdateFrame
 from clutt3r_core.segmentation.trace import Trace
 from clutt3r_core.segmentation.vote import VoteConfig, supervoxel_vote
 
@@ -83,56 +85,6 @@ def lod_indices(n: int, max_points: int, seed: int = 0) -> np.ndarray:
         return np.arange(n, dtype=np.int64)
     rng = np.random.default_rng(seed)
     return np.sort(rng.choice(n, size=max_points, replace=False)).astype(np.int64)
-
-
-@dataclass(frozen=True, eq=False)
-class GraspSet:
-    """Grasp candidates to show, when a run has them (``grasps.npz`` in the run folder).
-
-    Attributes:
-        poses: (G, 4, 4) float64 ``T_world_gripper``; gripper z = approach, x = closing direction.
-        widths: (G,) float32 opening in metres.
-        scores: (G,) float32 quality, higher is better.
-        instance: (G,) int32 target instance, -1 = unknown.
-    """
-
-    poses: np.ndarray
-    widths: np.ndarray
-    scores: np.ndarray
-    instance: np.ndarray
-
-    def __post_init__(self) -> None:
-        g = len(self.scores)
-        if np.shape(self.poses) != (g, 4, 4) or np.shape(self.widths) != (g,) or np.shape(self.instance) != (g,):
-            raise SceneError("GraspSet: poses (G,4,4), widths (G,), scores (G,), instance (G,) must agree")
-
-    @staticmethod
-    def load(path: str | Path) -> "GraspSet":
-        z = np.load(path)
-        return GraspSet(
-            poses=z["poses"].astype(np.float64), widths=z["widths"].astype(np.float32),
-            scores=z["scores"].astype(np.float32), instance=z["instance"].astype(np.int32),
-        )
-
-
-@dataclass(frozen=True, eq=False)
-class UpdateFrame:
-    """One post-interaction frame to replay (the hook for update data; none exists yet).
-
-    Attributes:
-        frame: frame index.
-        rgb: (H, W, 3) uint8 image, or None.
-        camera: its camera, or None.
-        point_instance: (N,) int32 instance per point of the run's cloud after the update
-            (-1 = removed / none), or None when only the image is known.
-        text: a markdown summary of what changed.
-    """
-
-    frame: int
-    rgb: np.ndarray | None = None
-    camera: Camera | None = None
-    point_instance: np.ndarray | None = None
-    text: str = ""
 
 
 @dataclass(frozen=True, eq=False)
@@ -252,16 +204,10 @@ class ViewerData:
     # -- language --------------------------------------------------------------------
 
     def instance_text_scores(self, text_embedding: np.ndarray) -> np.ndarray:
-        """(I,) float32: for each instance, the best cosine between the text and its masks' embeddings."""
-        t = np.asarray(text_embedding, np.float32).reshape(-1)
-        e = self.trace.embeddings
-        if e.shape[1] != t.shape[0]:
-            raise SceneError(f"text embedding has {t.shape[0]} dims but the run's mask embeddings have {e.shape[1]}")
-        cos = e @ (t / max(float(np.linalg.norm(t)), 1e-12))
-        out = np.full(self.seg.num_instances, -1.0, np.float32)
-        for k in range(self.seg.num_instances):
-            out[k] = cos[list(self.seg.instance_nodes(k))].max()
-        return out
+        """(I,) float32 per-instance text similarity (``clutt3r_core.query.instance_text_scores``)."""
+        from clutt3r_core.query import instance_text_scores
+
+        return instance_text_scores(self.seg, text_embedding)
 
 
 def _vote_config(tr: Trace) -> VoteConfig:

@@ -106,7 +106,7 @@ def text_embedder_for(data: ViewerData, override=None):
 
     ``override`` (an embedder object) wins. Otherwise the run's own embedder (by the name
     in its trace) is created and asked for one text embedding; a backend without text
-    support (``NotImplementedError``, e.g. 'appearance-hsv') or one that is not installed
+    support (no ``embed_text``, e.g. 'appearance-hsv') or one that is not installed
     gives None, and the Query tab is not shown.
     """
     from clutt3r_core.embeddings import create_embedder
@@ -117,6 +117,10 @@ def text_embedder_for(data: ViewerData, override=None):
             emb = create_embedder(data.trace.embedder)
         except (Clutt3rError, ImportError, TypeError):
             return None
+    from clutt3r_core.embeddings import has_text
+
+    if not has_text(emb):
+        return None
     try:
         t = emb.embed_text(["object"])
     except NotImplementedError:

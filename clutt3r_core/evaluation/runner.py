@@ -397,17 +397,9 @@ def subset_views(scene, n: int):
 
 
 def _run_method(method: str, scene):
-    from clutt3r_core.baselines import maskclustering_baseline, naive_baseline, segmentation_prediction
+    from clutt3r_core.registry import create_backend
 
-    if method in _PRESET_OF:
-        from clutt3r_core.pipeline import PRESETS, segment
-
-        return segmentation_prediction(segment(scene, PRESETS[_PRESET_OF[method]]), method)
-    if method == "naive":
-        return naive_baseline(scene)
-    if method == "maskclustering":
-        return maskclustering_baseline(scene)
-    raise SceneError(f"unknown method '{method}'")
+    return create_backend("bench_method", method).predict(scene)
 
 
 def _result_file(job: Job) -> Path:
