@@ -311,3 +311,11 @@ for _name, _desc in (
     register_backend("bench_method", _name, "clutt3r_core.evaluation.methods:make_method",
                      description=_desc, priority=1 if _name == "ours" else 0, defaults={"name": _name})
 del _name, _desc
+
+# -- mask generators (issue 11): register below this line ---------------------------------------
+
+# -- language: text-capable embedders (issue 17): register below this line ----------------------
+
+# -- grasp planners (issue 9): register below this line -----------------------------------------
+
+# -- pose optimisers (issue 10): register below this line ---------------------------------------
