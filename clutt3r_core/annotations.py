@@ -36,7 +36,6 @@ renumbering (``CorrectedLabels.compact`` renumbers for export). Conventions: doc
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import os
 import threading
@@ -49,7 +48,7 @@ from typing import Union
 import numpy as np
 
 from clutt3r_core.errors import SceneError, SceneFileError
-from clutt3r_core.io.images import atomic_write_bytes
+from clutt3r_core.io.images import atomic_write_bytes, npz_bytes
 
 __all__ = [
     "Relabel",
@@ -508,16 +507,12 @@ def _op_line(op: Op, seq: int) -> bytes:
     return (json.dumps(d, separators=(",", ":"), ensure_ascii=False) + "\n").encode()
 
 
-def _npz_bytes(**arrays) -> bytes:
-    buf = io.BytesIO()
-    np.savez_compressed(buf, **arrays)
-    return buf.getvalue()
-
-
 def _load_base(run_dir: Path) -> BaseLabels:
-    for name in ("instances.npz", "cloud.npz"):
-        if not (run_dir / name).is_file():
-            raise SceneFileError(run_dir / name, "missing: not a clutt3r run folder")
+    from clutt3r_core.runs import missing_run_file
+
+    missing = missing_run_file(run_dir, ("instances.npz", "cloud.npz"))  # the labels are all we need
+    if missing is not None:
+        raise SceneFileError(missing, "missing: not a clutt3r run folder")
     try:
         with np.load(run_dir / "instances.npz") as a, np.load(run_dir / "cloud.npz") as c:
             return BaseLabels(a["instance"], a["scores"], c["sv_labels"])
@@ -790,7 +785,7 @@ class Annotations:
             lab, n = self._labels, len(self._ops)
             end = self._log_bytes if self._fd is not None else 0
             digest = _prefix_sha256(self.log_path, end) if self._fd is not None else ""
-            atomic_write_bytes(self.snapshot_path, _npz_bytes(
+            atomic_write_bytes(self.snapshot_path, npz_bytes(
                 instance=lab.instance, scores=lab.scores, categories=np.array(lab.categories, dtype=str),
                 deleted=lab.deleted, num_ops=np.int64(n), log_sha256=np.array(digest),
                 instances_sha256=np.array(self._instances_sha)))

@@ -17,8 +17,9 @@ __all__ = ["main", "available_commands"]
 
 _CORE_COMMANDS: dict[str, str] = {
     "synth": "clutt3r_core.synth.cli:synth_command",
-    "segment": "clutt3r_core.pipeline:segment_command",
-    "bench": "clutt3r_core.evaluation.runner:bench_command",
+    "segment": "clutt3r_core.commands.segment:segment_command",
+    "bench": "clutt3r_core.commands.bench:bench_command",
+    "doctor": "clutt3r_core.commands.doctor:doctor_command",
 }
 
 

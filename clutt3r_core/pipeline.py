@@ -3,46 +3,36 @@
 ``segment(scene, config)`` runs, on the scene's initial views:
 point cloud fusion -> super-voxels -> per-view instance trees -> node occupancy and
 embeddings -> leaf graph -> two-stage grouping with substitution -> super-voxel
-majority vote. ``save_run`` / ``load_run`` write and read a run folder:
-
-    instances.npz        points (N,3) f32, colors (N,3) u8, instance (N,) i32 (-1 none), scores (K,) f32
-    instances.ply        the same cloud with per-vertex colour and instance id
-    instance_tree.json   the grouping in the original release's schema (schema_version 1)
-    cloud.npz            normals, voxel counts, super-voxel labels and support flags
-    trace/               trace.npz + trace.json (every intermediate, see segmentation/trace.py)
-    overview.png         (CLI only) instances splatted into up to four views
+majority vote. A run folder is written and read by ``clutt3r_core.runs`` (``save_run`` /
+``load_run``, re-exported here); the config and its presets live in ``clutt3r_core.config``
+(re-exported here); the ``clutt3r segment`` command is ``clutt3r_core.commands.segment``.
 """
 
 from __future__ import annotations
 
-import io
-import json
-from dataclasses import asdict, dataclass, field
-from pathlib import Path
-from typing import Literal
-
-from tyro.conf import Positional
+from dataclasses import dataclass
 
 import numpy as np
 
+from clutt3r_core.config import PRESETS, SegmentConfig, _paper_literal  # noqa: F401  (re-exported)
 from clutt3r_core.embeddings import MaskEmbedder, create_embedder
-from clutt3r_core.errors import SceneError, SceneFileError
-from clutt3r_core.io.images import atomic_write_bytes
-from clutt3r_core.occupancy import OccupancyConfig, mask_occupancy, mask_voxel_hits
-from clutt3r_core.pointcloud import PointCloudConfig, fuse_views
-from clutt3r_core.scene import MaskCandidates, Scene
+from clutt3r_core.errors import SceneError
+from clutt3r_core.occupancy import mask_occupancy, mask_voxel_hits
+from clutt3r_core.pointcloud import fuse_views
+from clutt3r_core.runs import load_run, save_run  # noqa: F401  (re-exported)
+from clutt3r_core.scene import Scene
+from clutt3r_core.segmentation.evidence import background_masks, check_views
 from clutt3r_core.segmentation.grouping import (
-    GroupingConfig,
     NodeTable,
     SimilarityGraph,
     run_grouping,
     semantic_similarity,
     spatial_similarity,
 )
-from clutt3r_core.segmentation.trace import StageClock, Trace, load_trace, save_trace
-from clutt3r_core.segmentation.trees import InstanceTree, TreeConfig, build_instance_tree
-from clutt3r_core.segmentation.vote import VoteConfig, supervoxel_vote
-from clutt3r_core.supervoxels import SuperVoxelConfig, build_supervoxels
+from clutt3r_core.segmentation.trace import StageClock, Trace
+from clutt3r_core.segmentation.trees import InstanceTree, build_instance_tree
+from clutt3r_core.segmentation.vote import supervoxel_vote
+from clutt3r_core.supervoxels import build_supervoxels
 
 __all__ = [
     "SegmentConfig",
@@ -52,43 +42,7 @@ __all__ = [
     "save_run",
     "load_run",
     "instance_tree_json",
-    "segment_command",
 ]
-
-
-@dataclass(frozen=True)
-class SegmentConfig:
-    """All stages of the segmentation core; each field is one stage's config."""
-
-    pointcloud: PointCloudConfig = field(default_factory=PointCloudConfig)
-    supervoxels: SuperVoxelConfig = field(default_factory=SuperVoxelConfig)
-    occupancy: OccupancyConfig = field(default_factory=OccupancyConfig)
-    trees: TreeConfig = field(default_factory=TreeConfig)
-    grouping: GroupingConfig = field(default_factory=GroupingConfig)
-    vote: VoteConfig = field(default_factory=VoteConfig)
-    embedder: str = "appearance-hsv"
-    """Backend of S_semantic (Sec. III-B.2 uses Duoduo CLIP; see clutt3r_core/embeddings.py)."""
-    background_fraction: float = 0.5
-    """Ours: a mask whose 3D points lie more than this fraction on support super-voxels
-    (table, tray) is background: it stays in its tree but never joins a group."""
-
-
-def _paper_literal() -> SegmentConfig:
-    # The paper's text without our additions: occupancy over all voxels of a super-voxel,
-    # no coverage guard, no support handling in the vote, no overlap gate on stage 2.
-    return SegmentConfig(
-        occupancy=OccupancyConfig(normalise="all"),
-        grouping=GroupingConfig(semantic_needs_overlap=False),
-        vote=VoteConfig(min_coverage=0.0, label_support=True),
-    )
-
-
-PRESETS: dict[str, SegmentConfig] = {
-    "default": SegmentConfig(),
-    "paper": _paper_literal(),
-    "no-spatial": SegmentConfig(grouping=GroupingConfig(use_spatial=False)),
-    "no-substitution": SegmentConfig(grouping=GroupingConfig(substitution=False)),
-}
 
 
 @dataclass(frozen=True, eq=False)
@@ -136,16 +90,6 @@ class Segmentation:
         return self.trace.grouping.groups[int(self.trace.vote.instance_group[k])]
 
 
-def _check_views(scene: Scene) -> None:
-    if not scene.initial:
-        raise SceneError(f"{scene.name or 'scene'}: no initial views to segment")
-    for v in scene.initial_views:
-        if v.depth is None:
-            raise SceneError(f"{v.name or v.frame}: initial view has no depth")
-        if v.masks is None:
-            raise SceneError(f"{v.name or v.frame}: initial view has no mask candidates")
-
-
 def segment(
     scene: Scene,
     config: SegmentConfig = SegmentConfig(),
@@ -153,7 +97,7 @@ def segment(
     progress: bool = False,
 ) -> Segmentation:
     """Segment the initial views of ``scene`` into 3D instances (Sec. III-A, III-B)."""
-    _check_views(scene)
+    check_views(scene)
     timer = StageClock()
     embedder = embedder or create_embedder(config.embedder)
     # canonical view order (by frame) so that the result does not depend on input order
@@ -184,13 +128,11 @@ def segment(
 
     with timer("occupancy"):
         occ_parts, bg_parts = [], []
-        support_voxel = sv.support[sv.labels].astype(np.float64)
+        support_voxel = sv.support[sv.labels]
         for vi, (v, masks) in enumerate(zip(views, nodes_masks)):
             hits = mask_voxel_hits(cloud, vi, masks)  # once per view: occupancy and background
             occ_parts.append(mask_occupancy(cloud, sv, vi, masks, config.occupancy, hits=hits))
-            total = hits @ np.ones(cloud.num)  # integer pixel counts: exact in float64
-            on_support = hits @ support_voxel
-            bg_parts.append(on_support > config.background_fraction * np.maximum(total, 1e-9))
+            bg_parts.append(background_masks(hits, support_voxel, config.background_fraction))
         occupancy = np.concatenate(occ_parts, axis=0) if occ_parts else np.zeros((0, sv.num), np.float32)
         background = np.concatenate(bg_parts) if bg_parts else np.zeros(0, bool)
         nodes = NodeTable(nodes.frame, nodes.view, nodes.mask_id, nodes.parent, nodes.is_leaf, background)
@@ -235,7 +177,7 @@ def segment(
         vote=vote,
         timings=tuple(timer.items),
         embedder=getattr(embedder, "name", type(embedder).__name__),
-        config=_jsonable(asdict(config)),
+        config=config,
     )
     return Segmentation(
         points=cloud.points,
@@ -249,16 +191,6 @@ def segment(
         trace=trace,
         scene_name=scene.name,
     )
-
-
-def _jsonable(x):
-    if isinstance(x, dict):
-        return {k: _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.generic):
-        return x.item()
-    return x
 
 
 def _node_table(views, trees: tuple[InstanceTree, ...]) -> tuple[list[np.ndarray], NodeTable]:
@@ -297,12 +229,7 @@ def instance_tree_json(seg: Segmentation) -> dict:
     """
     tr = seg.trace
     n = tr.nodes
-    node_inst = np.full(len(n), -1, np.int64)
-    for k, gi in enumerate(tr.vote.instance_group):
-        node_inst[list(tr.grouping.groups[int(gi)])] = k
-    for s in tr.grouping.substitutions:
-        for r in s.replaced:
-            node_inst[r] = node_inst[s.parent]
+    node_inst = tr.node_instance(follow_substitutions=True)
     leaf2inst = [
         {"frame": int(n.frame[i]), "mask": int(n.mask_id[i]), "instance": int(node_inst[i])}
         for i in np.flatnonzero(n.is_leaf)
@@ -325,98 +252,3 @@ def instance_tree_json(seg: Segmentation) -> dict:
             ],
         },
     }
-
-
-def _ply_bytes(points: np.ndarray, colors: np.ndarray, instance: np.ndarray) -> bytes:
-    n = len(points)
-    header = (
-        "ply\nformat binary_little_endian 1.0\n"
-        f"element vertex {n}\n"
-        "property float x\nproperty float y\nproperty float z\n"
-        "property uchar red\nproperty uchar green\nproperty uchar blue\n"
-        "property int instance\nend_header\n"
-    ).encode()
-    rec = np.empty(n, dtype=[("p", "<f4", 3), ("c", "u1", 3), ("i", "<i4")])
-    rec["p"], rec["c"], rec["i"] = points, colors, instance
-    return header + rec.tobytes()
-
-
-def _npz_bytes(**arrays) -> bytes:
-    buf = io.BytesIO()
-    np.savez_compressed(buf, **arrays)
-    return buf.getvalue()
-
-
-def save_run(seg: Segmentation, out: str | Path) -> Path:
-    """Write a run folder (module docstring). Every file is written atomically."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(out / "instances.npz", _npz_bytes(
-        points=seg.points.astype(np.float32), colors=seg.colors.astype(np.uint8),
-        instance=seg.instance.astype(np.int32), scores=seg.scores.astype(np.float32)))
-    atomic_write_bytes(out / "cloud.npz", _npz_bytes(
-        normals=seg.normals.astype(np.float32), counts=seg.counts.astype(np.int32),
-        sv_labels=seg.sv_labels.astype(np.int32), sv_support=seg.sv_support.astype(bool)))
-    atomic_write_bytes(out / "instances.ply", _ply_bytes(seg.points, seg.colors, seg.instance))
-    atomic_write_bytes(out / "instance_tree.json", json.dumps(instance_tree_json(seg), indent=1).encode())
-    save_trace(seg.trace, out / "trace")
-    atomic_write_bytes(out / "run.json", json.dumps({"scene_name": seg.scene_name}).encode())
-    return out
-
-
-def load_run(folder: str | Path) -> Segmentation:
-    """Read a run folder written by ``save_run`` without recomputing anything."""
-    folder = Path(folder)
-    for name in ("instances.npz", "cloud.npz"):
-        if not (folder / name).is_file():
-            raise SceneFileError(folder / name, "missing: not a clutt3r run folder")
-    try:
-        a = dict(np.load(folder / "instances.npz"))
-        c = dict(np.load(folder / "cloud.npz"))
-    except (OSError, ValueError) as e:
-        raise SceneFileError(folder, f"unreadable run arrays: {e}") from None
-    name = ""
-    if (folder / "run.json").is_file():
-        name = json.loads((folder / "run.json").read_text()).get("scene_name", "")
-    return Segmentation(
-        points=a["points"], colors=a["colors"], normals=c["normals"], counts=c["counts"],
-        instance=a["instance"], scores=a["scores"], sv_labels=c["sv_labels"], sv_support=c["sv_support"],
-        trace=load_trace(folder / "trace"), scene_name=name,
-    )
-
-
-def segment_command(
-    scene: Positional[Path],
-    out: Path,
-    config: SegmentConfig = SegmentConfig(),
-    preset: Literal["", "default", "paper", "no-spatial", "no-substitution"] = "",
-) -> None:
-    """Segment a scene folder (sample layout or BOP) and write the run to OUT.
-
-    Args:
-        scene: scene folder (transforms.json or scene_camera.json inside).
-        out: run folder to write (instances.npz, instances.ply, instance_tree.json, trace/).
-        config: every stage's settings (paper defaults, Sec. IV).
-        preset: if set, one of default / paper / no-spatial / no-substitution; replaces --config.
-    """
-    from rich.console import Console
-
-    from clutt3r_core.io import load_scene
-
-    console = Console(stderr=True)
-    if preset:
-        config = PRESETS[preset]
-    with console.status(f"loading {scene}"):
-        sc = load_scene(scene)
-    seg = segment(sc, config, progress=True)
-    save_run(seg, out)
-    from clutt3r_core.io.images import write_png
-    from clutt3r_core.visualize import overview_sheet
-
-    write_png(Path(out) / "overview.png", overview_sheet(seg.points, seg.instance, sc))
-    t = seg.trace
-    console.print(
-        f"[bold]{sc.name}[/]: {seg.num_instances} instances from {int(t.nodes.is_leaf.sum())} leaves "
-        f"({len(t.grouping.merges)} merges, {len(t.grouping.substitutions)} substitutions), "
-        f"{len(seg.points)} points; core {sum(x.seconds for x in t.timings):.2f} s -> {out}"
-    )

@@ -211,10 +211,7 @@ class ViewerData:
 
 
 def _vote_config(tr: Trace) -> VoteConfig:
-    try:
-        return VoteConfig(**tr.config.get("vote", {}))
-    except TypeError:  # a run written by another version: its fields differ, use the defaults
-        return VoteConfig()
+    return tr.config.vote  # typed; load_trace refuses a config it cannot read back exactly
 
 
 def node_label(tr: Trace, i: int) -> str:

@@ -3,9 +3,9 @@
 ``mask_evidence`` runs the same front end as ``pipeline.segment``: the same fused cloud
 (``fuse_views`` with ``SegmentConfig().pointcloud``), the same super-voxels (only their
 support flags are used: table, tray floor and walls), the same mask candidates with the
-same tiny-mask filter as the instance trees, and the same background rule (a mask with
-more than ``background_fraction`` of its voxel hits on support is background and never
-grouped). Each mask becomes the set of voxels its pixels fed (``mask_voxel_hits``).
+same tiny-mask filter as the instance trees (``trees.min_mask_area``), and the same
+background rule (``segmentation.evidence.background_masks``: mostly on support, or no 3D
+evidence at all; never grouped). Each mask becomes the set of voxels its pixels fed (``mask_voxel_hits``).
 ``assign_by_majority`` turns groups of masks into per-point instances with our vote's
 filters (support voxels stay unlabelled, specks under ``min_instance_points`` raw points
 are dropped), so the instance output is the same form as ``Segmentation``.
@@ -22,6 +22,7 @@ import scipy.sparse as sp
 from clutt3r_core.errors import SceneError
 from clutt3r_core.scene import Scene
 from clutt3r_core.segmentation.trace import StageClock, StageTiming
+from clutt3r_core.segmentation.vote import renumber_by_score
 
 __all__ = ["Prediction", "MaskEvidence", "mask_evidence", "assign_by_majority", "StageClock"]
 
@@ -100,14 +101,16 @@ class MaskEvidence:
 
 def mask_evidence(scene: Scene, config=None, clock: StageClock | None = None) -> MaskEvidence:
     """The shared front end (module docstring). ``config``: a ``SegmentConfig`` (default: ours)."""
+    from clutt3r_core.config import SegmentConfig
     from clutt3r_core.occupancy import mask_voxel_hits
-    from clutt3r_core.pipeline import SegmentConfig, _check_views
     from clutt3r_core.pointcloud import fuse_views
+    from clutt3r_core.segmentation.evidence import background_masks, check_views
+    from clutt3r_core.segmentation.trees import min_mask_area
     from clutt3r_core.supervoxels import build_supervoxels
 
     cfg = config if config is not None else SegmentConfig()
     clock = clock if clock is not None else StageClock()
-    _check_views(scene)
+    check_views(scene)
     views = sorted(scene.initial_views, key=lambda v: v.frame)
     with clock("pointcloud"):
         cloud = fuse_views(views, cfg.pointcloud)
@@ -119,19 +122,17 @@ def mask_evidence(scene: Scene, config=None, clock: StageClock | None = None) ->
         for vi, v in enumerate(views):
             m = v.masks
             h, w = m.shape if len(m) else (v.camera.height, v.camera.width)
-            min_area = cfg.trees.min_area_px if cfg.trees.min_area_px > 0 else max(1, int(round(1e-4 * h * w)))
+            min_area = min_mask_area(cfg.trees, h, w)
             order = np.argsort(m.ids, kind="stable")
             keep = order[m.areas()[order] >= min_area] if len(m) else order
             if len(keep) == 0:
                 continue
             hits = mask_voxel_hits(cloud, vi, m.masks[keep])
-            hits.data[:] = 1.0
-            total = np.asarray(hits.sum(axis=1)).ravel()
-            on_sup = np.asarray(hits[:, support].sum(axis=1)).ravel()
+            bg.append(background_masks(hits, support, cfg.background_fraction))
+            hits.data[:] = 1.0  # a mask is the set of voxels it fed
             rows.append(hits)
             view.append(np.full(len(keep), vi, np.int32))
             mids.append(m.ids[keep].astype(np.int32))
-            bg.append((on_sup > cfg.background_fraction * np.maximum(total, 1e-9)) | (total == 0))
         voxels = sp.vstack(rows).tocsr().astype(np.float32) if rows else sp.csr_matrix((0, cloud.num), dtype=np.float32)
     cat = lambda xs, dt: np.concatenate(xs).astype(dt) if xs else np.zeros(0, dt)  # noqa: E731
     return MaskEvidence(
@@ -169,9 +170,5 @@ def assign_by_majority(
     label = np.where(has, win, -1)
     size = np.array([len(m) for m in groups], np.float64)
     pts = np.bincount(label[label >= 0], weights=ev.counts[label >= 0], minlength=g)
-    alive = np.flatnonzero(pts >= min_instance_points)
-    alive = alive[np.lexsort((alive, -size[alive]))]
-    remap = np.full(g, -1, np.int32)
-    remap[alive] = np.arange(len(alive), dtype=np.int32)
-    inst = np.where(label >= 0, remap[np.maximum(label, 0)], -1).astype(np.int32)
+    inst, alive = renumber_by_score(label, size, pts >= min_instance_points)
     return inst, size[alive].astype(np.float32)

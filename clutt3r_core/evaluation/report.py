@@ -220,7 +220,7 @@ def write_report(
     feed the sweeps. ``markdown``: where to write the Markdown (default ``out/report.md``);
     plot links are relative to it.
     """
-    from clutt3r_core.evaluation.runner import Setting, code_version
+    from clutt3r_core.evaluation.jobs import Setting, code_version
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

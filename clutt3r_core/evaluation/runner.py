@@ -18,7 +18,8 @@ default; ``SerialExecutor`` for tests). Two caches make a run resumable:
 ``<cache>/results/<hash>.json`` one finished job, keyed by a content hash of the scene's
 config, the method's config, the setting and the code version (a hash of the package
 sources), so a changed algorithm never reuses a stale number. The report (Markdown,
-JSON, PNG plots) is written by ``evaluation/report.py``.
+JSON, PNG plots) is written by ``evaluation/report.py``; the types shared by both live in
+``evaluation/jobs.py``; the command is ``clutt3r_core.commands.bench``.
 """
 
 from __future__ import annotations
@@ -37,6 +38,20 @@ from typing import Callable, Iterable, Iterator, Literal, Protocol, Sequence, Ty
 import numpy as np
 
 from clutt3r_core.errors import SceneError, SceneFileError
+from clutt3r_core.evaluation.jobs import (  # noqa: F401  (re-exported: the runner's public names)
+    DIFFICULTIES,
+    MASK_NOISES,
+    METHODS,
+    Job,
+    JobResult,
+    Method,
+    SceneSpec,
+    Setting,
+    _sha,
+    code_version,
+    job_key,
+    synth_version,
+)
 from clutt3r_core.io.images import atomic_write_bytes
 
 __all__ = [
@@ -57,14 +72,8 @@ __all__ = [
     "run_job",
     "job_key",
     "code_version",
-    "bench_command",
 ]
 
-Method = Literal["ours", "paper", "no-spatial", "no-substitution", "naive", "maskclustering"]
-METHODS: tuple[str, ...] = ("ours", "paper", "no-spatial", "no-substitution", "naive", "maskclustering")
-DIFFICULTIES: tuple[str, ...] = ("easy", "intermediate", "hard")
-MASK_NOISES: tuple[str, ...] = ("clean", "grounded-sam-like", "harsh")
-_PRESET_OF = {"ours": "default", "paper": "paper", "no-spatial": "no-spatial", "no-substitution": "no-substitution"}
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -113,171 +122,6 @@ class ProcessExecutor:
 # ------------------------------------------------------------------ specs
 
 
-def _sha(obj) -> str:
-    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:16]
-
-
-def _source_hash(paths: Iterable[Path]) -> str:
-    h = hashlib.sha256()
-    for p in sorted(paths):
-        h.update(str(p.name).encode())
-        h.update(p.read_bytes())
-    return h.hexdigest()[:12]
-
-
-_PKG = Path(__file__).resolve().parents[1]
-
-
-@functools.lru_cache(maxsize=1)
-def code_version() -> str:
-    """Hash of the package sources that decide a result (everything but the runner and report).
-
-    Computed once per process, close to when the modules were imported: the tree may be
-    edited while a long run goes on, and a worker keeps running the code it imported."""
-    skip = {_PKG / "evaluation" / "runner.py", _PKG / "evaluation" / "report.py"}
-    return _source_hash(p for p in _PKG.rglob("*.py") if p not in skip)
-
-
-def _synth_version() -> str:
-    return _source_hash(list((_PKG / "synth").rglob("*.py")) + [_PKG / "scene.py"])
-
-
-@dataclass(frozen=True)
-class SceneSpec:
-    """One benchmark scene.
-
-    Attributes:
-        name: scene name (unique in a benchmark).
-        difficulty: easy / intermediate / hard, or "folder" for scenes without a preset.
-        synth: the generator config as JSON-able data (``asdict(SynthConfig)``), or None.
-        path: the scene folder for loaded scenes, or None.
-        identity: content hash of what defines the scene (config + generator code, or file listing).
-    """
-
-    name: str
-    difficulty: str
-    synth: dict | None = None
-    path: str | None = None
-    identity: str = ""
-
-    def with_noise(self, mask_noise: str) -> "SceneSpec":
-        """The same generated scene with another mask-noise model (geometry is unchanged)."""
-        if self.synth is None or self.synth["mask_noise"] == mask_noise:
-            return self
-        cfg = {**self.synth, "mask_noise": mask_noise}
-        return replace(self, synth=cfg, identity=_sha([cfg, _synth_version()]))
-
-
-@dataclass(frozen=True)
-class Setting:
-    """Views used (a subset of the scene's initial views) and mask noise of generated scenes."""
-
-    views: int = 8
-    mask_noise: str = "grounded-sam-like"
-
-    @property
-    def label(self) -> str:
-        return f"{self.views}v/{self.mask_noise}"
-
-
-@dataclass(frozen=True)
-class Job:
-    """One (scene, method, setting). ``key`` is fixed when the job is planned (``plan_jobs``):
-    the code may change while a long run is going on (other work in the same tree), and a
-    result must come back under the key it was asked for."""
-
-    scene: SceneSpec
-    method: str
-    setting: Setting
-    cache_dir: str
-    key: str = ""
-
-    def __post_init__(self) -> None:
-        if not self.key:
-            object.__setattr__(self, "key", job_key(self.scene, self.method, self.setting))
-
-
-def job_key(scene: SceneSpec, method: str, setting: Setting, version: str | None = None) -> str:
-    """Content hash of a job: scene identity, method config, setting and code version."""
-    return _sha([scene.identity, method, _method_config(method), asdict(setting), version or code_version()])
-
-
-@dataclass(frozen=True)
-class JobResult:
-    """One finished job: AP, time, memory, and the matches needed to pool AP over scenes.
-
-    Times are seconds, memory MiB. ``stages`` are (stage, seconds) as the method reported
-    them (``Segmentation.trace.timings`` for ours); ``wall_seconds`` is the whole call.
-    ``peak_traced_mb`` is tracemalloc's peak (Python + numpy allocations of the job);
-    ``maxrss_mb`` the worker's resident-set high-water mark after the job.
-    """
-
-    key: str
-    scene: str
-    difficulty: str
-    mean_occlusion: float
-    method: str
-    views: int
-    mask_noise: str
-    ap25: float
-    ap50: float
-    ap: float
-    per_threshold: tuple[tuple[float, float], ...]
-    num_gt: int
-    num_pred: int
-    stages: tuple[tuple[str, float], ...]
-    wall_seconds: float
-    peak_traced_mb: float
-    maxrss_mb: float
-    match_scores: tuple[float, ...] = ()
-    match_tp: tuple[tuple[bool, ...], ...] = ()
-    match_thresholds: tuple[float, ...] = ()
-    code_version: str = ""
-    cached: bool = field(default=False, compare=False)
-
-    @property
-    def seconds(self) -> float:
-        return float(sum(s for _, s in self.stages))
-
-    def to_json(self) -> dict:
-        d = asdict(self)
-        d.pop("cached")
-        return d
-
-    @staticmethod
-    def from_json(d: dict, cached: bool = False) -> "JobResult":
-        d = dict(d)
-        d["per_threshold"] = tuple((float(a), float(b)) for a, b in d["per_threshold"])
-        d["stages"] = tuple((str(a), float(b)) for a, b in d["stages"])
-        d["match_scores"] = tuple(d.get("match_scores", ()))
-        d["match_tp"] = tuple(tuple(bool(x) for x in row) for row in d.get("match_tp", ()))
-        d["match_thresholds"] = tuple(d.get("match_thresholds", ()))
-        return JobResult(**d, cached=cached)
-
-    def matches(self):
-        from clutt3r_core.evaluation.metrics import InstanceMatches
-
-        s = np.asarray(self.match_scores, np.float64)
-        tp = np.asarray(self.match_tp, bool).reshape(len(self.match_thresholds), len(s))
-        return InstanceMatches(np.asarray(self.match_thresholds), s, tp, self.num_gt, np.zeros((len(s), self.num_gt)))
-
-
-def _method_config(method: str) -> dict:
-    if method in _PRESET_OF:
-        from clutt3r_core.pipeline import PRESETS
-
-        return asdict(PRESETS[_PRESET_OF[method]])
-    if method == "naive":
-        from clutt3r_core.baselines.naive import NaiveConfig
-
-        return asdict(NaiveConfig())
-    if method == "maskclustering":
-        from clutt3r_core.baselines.maskclustering import MaskClusteringConfig
-
-        return asdict(MaskClusteringConfig())
-    raise SceneError(f"unknown method '{method}'; choose from {', '.join(METHODS)}")
-
-
 def synth_suite(
     per_difficulty: int,
     difficulties: Sequence[str] = DIFFICULTIES,
@@ -292,7 +136,7 @@ def synth_suite(
     from clutt3r_core.synth.generator import SynthConfig
 
     out = []
-    sv = _synth_version()
+    sv = synth_version()
     for d in difficulties:
         for s in range(seed0, seed0 + per_difficulty):
             cfg = asdict(SynthConfig(seed=s, preset=d, views=views, width=width, height=height,
@@ -490,82 +334,3 @@ def run_benchmark(
             bar.update(1)
         bar.close()
     return [by_key[j.key] for j in jobs]
-
-
-# ------------------------------------------------------------------ command
-
-
-def bench_command(
-    out: Path = Path("out/bench"),
-    suite: Literal["standard", "quick", "tiny"] = "standard",
-    per_difficulty: int = 0,
-    scenes_dir: Path | None = None,
-    methods: tuple[Method, ...] = tuple(METHODS),  # type: ignore[assignment]
-    view_sweep: bool = True,
-    noise_sweep: bool = True,
-    sweep_per_difficulty: int = 2,
-    width: int = 0,
-    height: int = 0,
-    seed0: int = 0,
-    workers: int = 2,
-    cache: Path = Path(".bench-cache"),
-    markdown: Path | None = None,
-    notes: Path | None = None,
-    progress: bool = True,
-) -> None:
-    """Benchmark 3D instance segmentation: our method, its ablations and the baselines.
-
-    Writes OUT/report.md, OUT/results.json and OUT/*.png (Tables I, III, IV of the paper, a
-    mask-noise sweep, per-stage times, memory). Finished jobs are cached under CACHE, so an
-    interrupted run resumes where it stopped.
-
-    Args:
-        out: report folder.
-        suite: generated scenes: standard = 6 per difficulty at 640x480; quick = 2 per
-            difficulty at 640x480; tiny = 1 per difficulty at 160x120 (smoke test).
-        per_difficulty: override the suite's number of scenes per difficulty (0 = suite default).
-        scenes_dir: evaluate these scene folders (with gt/points.npz) instead of generated scenes.
-        methods: methods to run on the main setting (8 views, grounded-sam-like masks).
-        view_sweep: also run ours and the baselines with 4 and 6 of the 8 views (Table IV).
-        noise_sweep: also run ours and the baselines on clean and harsh mask candidates.
-        sweep_per_difficulty: scenes per difficulty used by the sweeps (the first ones).
-        width: image width of generated scenes (0 = suite default).
-        height: image height of generated scenes (0 = suite default).
-        seed0: first seed of the generated scenes.
-        workers: worker processes (1 = run serially in this process).
-        cache: cache folder for scenes and finished jobs.
-        markdown: where to write the Markdown report (default OUT/report.md); plot links are
-            relative to it (e.g. --out docs/benchmark --markdown docs/benchmark.md).
-        notes: a Markdown file whose text is inserted after the tables (hand-written analysis).
-        progress: show progress bars.
-    """
-    import shlex
-    import sys
-
-    from clutt3r_core.evaluation.report import write_report
-
-    defaults = {"standard": (6, 640, 480), "quick": (2, 640, 480), "tiny": (1, 160, 120)}[suite]
-    n = per_difficulty or defaults[0]
-    w, h = width or defaults[1], height or defaults[2]
-    t0 = time.perf_counter()
-    main = Setting(8, "grounded-sam-like")
-    if scenes_dir is not None:
-        scenes = folder_suite(scenes_dir)
-        sweep_scenes = scenes[: max(1, sweep_per_difficulty)]
-        noise_sweep = False  # a folder's masks are what they are
-    else:
-        scenes = synth_suite(n, width=w, height=h, seed0=seed0)
-        sweep_scenes = [s for d in DIFFICULTIES for s in [x for x in scenes if x.difficulty == d][:sweep_per_difficulty]]
-    jobs = plan_jobs(scenes, methods, [main], cache)
-    sweep_methods = [m for m in ("ours", "naive", "maskclustering") if m in methods]
-    if view_sweep:
-        jobs += plan_jobs(sweep_scenes, sweep_methods, [Setting(4, main.mask_noise), Setting(6, main.mask_noise)], cache)
-    if noise_sweep:
-        jobs += plan_jobs(sweep_scenes, sweep_methods, [Setting(8, "clean"), Setting(8, "harsh")], cache)
-    executor: Executor = SerialExecutor() if workers <= 1 else ProcessExecutor(workers)
-    results = run_benchmark(jobs, executor, progress=progress)
-    elapsed = time.perf_counter() - t0
-    command = "clutt3r bench " + " ".join(shlex.quote(a) for a in sys.argv[2:]) if len(sys.argv) > 1 and sys.argv[1] == "bench" else ""
-    path = write_report(results, out, command=command, elapsed=elapsed, workers=workers, main=main, markdown=markdown,
-                        notes=notes.read_text() if notes is not None and notes.is_file() else "")
-    print(f"{len(results)} jobs ({sum(r.cached for r in results)} cached) in {elapsed:.0f} s -> {path}")

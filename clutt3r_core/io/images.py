@@ -15,7 +15,10 @@ import numpy as np
 
 from clutt3r_core.errors import SceneFileError
 
-__all__ = ["read_rgb", "read_depth_mm", "read_mask", "read_label_png", "write_png", "atomic_write_bytes"]
+__all__ = [
+    "read_rgb", "read_depth_mm", "read_mask", "read_label_png", "write_png", "atomic_write_bytes", "npz_bytes",
+    "atomic_write_npz",
+]
 
 
 def _imread(path: Path, flags: int) -> np.ndarray:
@@ -106,6 +109,20 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
         except FileNotFoundError:
             pass
         raise
+
+
+def npz_bytes(**arrays: np.ndarray) -> bytes:
+    """``arrays`` as the bytes of a compressed ``.npz`` (``np.savez_compressed``), without touching disk."""
+    import io
+
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **arrays)
+    return buf.getvalue()
+
+
+def atomic_write_npz(path: str | Path, **arrays: np.ndarray) -> None:
+    """Write ``arrays`` as a compressed ``.npz`` atomically (every npz the tool writes goes through here)."""
+    atomic_write_bytes(path, npz_bytes(**arrays))
 
 
 def write_png(path: str | Path, img: np.ndarray) -> None:

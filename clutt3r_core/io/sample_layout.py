@@ -35,6 +35,7 @@ import numpy as np
 from clutt3r_core.errors import SceneError, SceneFileError
 from clutt3r_core.io.images import (
     atomic_write_bytes,
+    atomic_write_npz,
     read_depth_mm,
     read_label_png,
     read_mask,
@@ -322,11 +323,7 @@ def write_sample_layout(scene: Scene, root: str | Path, *, instance_tree: dict |
              "color": None if o.color is None else list(o.color)}
             for o in gt.objects
         ])
-        import io
-
-        buf = io.BytesIO()
-        np.savez_compressed(buf, points=gt.points, labels=gt.point_labels)
-        atomic_write_bytes(root / "gt" / "points.npz", buf.getvalue())
+        atomic_write_npz(root / "gt" / "points.npz", points=gt.points, labels=gt.point_labels)
     if instance_tree is not None:
         _dump_json(root / "instance_tree.json", instance_tree)
     return root

@@ -1,12 +1,12 @@
 """The trace of a segmentation run: every intermediate, for the viewer, rerun and tests.
 
 Serialised compactly as ``trace.npz`` (arrays) + ``trace.json`` (steps, timings,
-config); ``load_trace`` reads back an equal object.
+config); ``load_trace`` reads back an equal object. The config is the run's typed
+``SegmentConfig`` and is read back equal or not at all (``config.config_from_json``).
 """
 
 from __future__ import annotations
 
-import io
 import json
 import time
 from collections.abc import Iterator
@@ -16,8 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from clutt3r_core.errors import SceneFileError
-from clutt3r_core.io.images import atomic_write_bytes
+from clutt3r_core.config import SegmentConfig, config_from_json, config_to_json
+from clutt3r_core.errors import SceneError, SceneFileError
+from clutt3r_core.io.images import atomic_write_bytes, atomic_write_npz
 from clutt3r_core.segmentation.grouping import GroupingResult, MergeStep, NodeTable, Substitution
 from clutt3r_core.segmentation.trees import InstanceTree
 from clutt3r_core.segmentation.vote import VoteResult
@@ -63,7 +64,7 @@ class Trace:
         vote: per-super-voxel votes and the instances (Sec. III-B.4).
         timings: seconds per stage.
         embedder: name of the embedding backend used for S_semantic.
-        config: the SegmentConfig as JSON-able data.
+        config: the run's ``SegmentConfig`` (saved as JSON, read back equal).
     """
 
     frames: np.ndarray
@@ -77,10 +78,30 @@ class Trace:
     vote: VoteResult
     timings: tuple[StageTiming, ...]
     embedder: str
-    config: dict
+    config: SegmentConfig
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.config, SegmentConfig):
+            raise SceneError(f"Trace.config must be a SegmentConfig, got {type(self.config).__name__}")
 
     def timing(self, stage: str) -> float:
         return sum(t.seconds for t in self.timings if t.stage == stage)
+
+    def node_instance(self, follow_substitutions: bool = False) -> np.ndarray:
+        """(U,) int32 instance of every node through its final group, -1 = none.
+
+        A node is in instance k when it is a member of group ``vote.instance_group[k]``.
+        With ``follow_substitutions`` a residual leaf that a substitution replaced by its
+        parent (Sec. III-B.3; it is then in no group) gets the parent's instance, as in
+        ``instance_tree.json``'s ``leaf2inst``.
+        """
+        out = np.full(len(self.nodes), -1, np.int32)
+        for k, gi in enumerate(self.vote.instance_group):
+            out[list(self.grouping.groups[int(gi)])] = k
+        if follow_substitutions:
+            for s in self.grouping.substitutions:
+                out[list(s.replaced)] = out[s.parent]
+        return out
 
     def groups_at(self, n_events: int) -> list[tuple[int, ...]]:
         """The groups after the first ``n_events`` events (merges and substitutions, in order).
@@ -143,9 +164,7 @@ def save_trace(trace: Trace, folder: str | Path) -> Path:
         "sv_runner_up": v.sv_runner_up, "sv_coverage": v.sv_coverage,
         "instance_group": v.instance_group, "scores": v.scores,
     }
-    buf = io.BytesIO()
-    np.savez_compressed(buf, **arrays)
-    atomic_write_bytes(folder / "trace.npz", buf.getvalue())
+    atomic_write_npz(folder / "trace.npz", **arrays)
     g = trace.grouping
     meta = {
         "version": TRACE_VERSION,
@@ -156,13 +175,15 @@ def save_trace(trace: Trace, folder: str | Path) -> Path:
         "substitutions": [asdict(s) for s in g.substitutions],
         "events": [list(e) for e in g.events],
         "timings": [asdict(t) for t in trace.timings],
-        "config": trace.config,
+        "config": config_to_json(trace.config),
     }
     atomic_write_bytes(folder / "trace.json", json.dumps(meta, indent=1).encode())
     return folder
 
 
 def load_trace(folder: str | Path) -> Trace:
+    """Read a trace written by ``save_trace``; ``SceneFileError`` naming the file and the problem
+    (for the config: the field) when it cannot be read back exactly."""
     folder = Path(folder)
     jpath, npath = folder / "trace.json", folder / "trace.npz"
     for p in (jpath, npath):
@@ -174,6 +195,9 @@ def load_trace(folder: str | Path) -> Trace:
         raise SceneFileError(jpath, f"not valid JSON ({e.msg})") from None
     if meta.get("version") != TRACE_VERSION:
         raise SceneFileError(jpath, f"trace version {meta.get('version')} is not {TRACE_VERSION}")
+    if "config" not in meta:
+        raise SceneFileError(jpath, "config: missing (the run's settings are unknown)")
+    config = config_from_json(meta["config"], jpath)
     try:
         z = dict(np.load(npath))
     except (OSError, ValueError) as e:
@@ -207,5 +231,5 @@ def load_trace(folder: str | Path) -> Trace:
         vote=vote,
         timings=tuple(StageTiming(**t) for t in meta["timings"]),
         embedder=meta["embedder"],
-        config=meta["config"],
+        config=config,
     )

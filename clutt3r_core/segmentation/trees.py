@@ -27,7 +27,7 @@ import numpy as np
 from clutt3r_core.errors import SceneError
 from clutt3r_core.scene import MaskCandidates
 
-__all__ = ["TreeConfig", "InstanceTree", "build_instance_tree", "mask_overlaps", "mask_codes", "subtree_leaves"]
+__all__ = ["TreeConfig", "InstanceTree", "build_instance_tree", "min_mask_area", "mask_overlaps", "mask_codes", "subtree_leaves"]
 
 
 @dataclass(frozen=True)
@@ -172,10 +172,16 @@ def mask_overlaps(masks: np.ndarray) -> np.ndarray:
     return b.T @ (b * counts[:, None])
 
 
+def min_mask_area(cfg: TreeConfig, height: int, width: int) -> int:
+    """Fewest pixels a mask candidate of a ``height`` x ``width`` view needs to be used at all
+    (``TreeConfig.min_area_px``; 0 = 0.01 % of the image, at least 1). The baselines use it too."""
+    return cfg.min_area_px if cfg.min_area_px > 0 else max(1, int(round(1e-4 * height * width)))
+
+
 def build_instance_tree(masks: MaskCandidates, frame: int, cfg: TreeConfig = TreeConfig()) -> InstanceTree:
     """Build the containment forest of one view's mask candidates (Sec. III-B.1)."""
     h, w = masks.shape if len(masks) else (0, 0)
-    min_area = cfg.min_area_px if cfg.min_area_px > 0 else max(1, int(round(1e-4 * h * w)))
+    min_area = min_mask_area(cfg, h, w)
     order = np.argsort(masks.ids, kind="stable")  # canonical order: by id, whatever the input order
     ids = masks.ids[order]
     # Overlaps of all masks in one pass over the stack as given (no reordered copy of

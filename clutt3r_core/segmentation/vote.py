@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["VoteConfig", "VoteResult", "supervoxel_vote"]
+__all__ = ["VoteConfig", "VoteResult", "supervoxel_vote", "renumber_by_score"]
 
 
 @dataclass(frozen=True)
@@ -57,6 +57,22 @@ class VoteResult:
     sv_coverage: np.ndarray
     instance_group: np.ndarray
     scores: np.ndarray
+
+
+def renumber_by_score(label: np.ndarray, score: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Instances 0..K-1 by descending score from group labels (the pipeline and the baselines).
+
+    label: (N,) int group of each element, -1 = none; score: (G,) score of each group;
+    keep: (G,) bool, group may become an instance. Returns (new label (N,) int32, -1 for
+    none or a dropped group; order (K,) int64, the group of each instance). Ties go to
+    the lower group index, so the numbering is deterministic.
+    """
+    label = np.asarray(label)
+    alive = np.flatnonzero(keep)
+    alive = alive[np.lexsort((alive, -np.asarray(score)[alive]))]
+    remap = np.full(max(len(keep), 1), -1, np.int32)
+    remap[alive] = np.arange(len(alive), dtype=np.int32)
+    return np.where(label >= 0, remap[np.maximum(label, 0)], -1).astype(np.int32), alive
 
 
 def supervoxel_vote(
@@ -111,11 +127,7 @@ def supervoxel_vote(
             internal = float(sub[np.triu_indices(len(m), 1)].mean())
         conf[i] = len(m) / max(n_views, 1) + 1e-3 * internal
     points = np.bincount(chosen[chosen >= 0], weights=sv_counts[chosen >= 0], minlength=g) if g else np.zeros(0)
-    alive = np.flatnonzero(eligible & (points >= cfg.min_instance_points))
-    alive = alive[np.lexsort((alive, -conf[alive]))]  # descending confidence, group index on ties
-    remap = np.full(max(g, 1), -1, np.int32)
-    remap[alive] = np.arange(len(alive), dtype=np.int32)
-    sv_label = np.where(chosen >= 0, remap[np.maximum(chosen, 0)], -1).astype(np.int32)
+    sv_label, alive = renumber_by_score(chosen, conf, eligible & (points >= cfg.min_instance_points))
     return VoteResult(
         sv_label=sv_label,
         sv_group=sv_group,

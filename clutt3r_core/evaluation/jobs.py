@@ -1,0 +1,204 @@
+"""What a benchmark is made of: scenes, settings, jobs, their results and the keys that cache them.
+
+Shared by the runner (``evaluation/runner.py``), the report (``evaluation/report.py``) and the
+``clutt3r bench`` command, so that none of them imports another for its types.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Iterable, Literal
+
+import numpy as np
+
+from clutt3r_core.errors import SceneError
+from clutt3r_core.evaluation.methods import PRESET_OF
+
+__all__ = [
+    "METHODS",
+    "DIFFICULTIES",
+    "MASK_NOISES",
+    "Method",
+    "SceneSpec",
+    "Setting",
+    "Job",
+    "JobResult",
+    "job_key",
+    "code_version",
+    "synth_version",
+]
+
+Method = Literal["ours", "paper", "no-spatial", "no-substitution", "naive", "maskclustering"]
+METHODS: tuple[str, ...] = ("ours", "paper", "no-spatial", "no-substitution", "naive", "maskclustering")
+DIFFICULTIES: tuple[str, ...] = ("easy", "intermediate", "hard")
+MASK_NOISES: tuple[str, ...] = ("clean", "grounded-sam-like", "harsh")
+
+
+def _sha(obj) -> str:
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def _source_hash(paths: Iterable[Path]) -> str:
+    h = hashlib.sha256()
+    for p in sorted(paths):
+        h.update(str(p.name).encode())
+        h.update(p.read_bytes())
+    return h.hexdigest()[:12]
+
+
+_PKG = Path(__file__).resolve().parents[1]
+
+
+@functools.lru_cache(maxsize=1)
+def code_version() -> str:
+    """Hash of the package sources that decide a result (everything but the runner and report).
+
+    Computed once per process, close to when the modules were imported: the tree may be
+    edited while a long run goes on, and a worker keeps running the code it imported."""
+    skip = {_PKG / "evaluation" / n for n in ("runner.py", "report.py", "jobs.py")} | {_PKG / "commands" / "bench.py"}
+    return _source_hash(p for p in _PKG.rglob("*.py") if p not in skip)
+
+
+def synth_version() -> str:
+    """Hash of the generator's sources (a generated scene's identity)."""
+    return _source_hash(list((_PKG / "synth").rglob("*.py")) + [_PKG / "scene.py"])
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    """One benchmark scene.
+
+    Attributes:
+        name: scene name (unique in a benchmark).
+        difficulty: easy / intermediate / hard, or "folder" for scenes without a preset.
+        synth: the generator config as JSON-able data (``asdict(SynthConfig)``), or None.
+        path: the scene folder for loaded scenes, or None.
+        identity: content hash of what defines the scene (config + generator code, or file listing).
+    """
+
+    name: str
+    difficulty: str
+    synth: dict | None = None
+    path: str | None = None
+    identity: str = ""
+
+    def with_noise(self, mask_noise: str) -> "SceneSpec":
+        """The same generated scene with another mask-noise model (geometry is unchanged)."""
+        if self.synth is None or self.synth["mask_noise"] == mask_noise:
+            return self
+        cfg = {**self.synth, "mask_noise": mask_noise}
+        return replace(self, synth=cfg, identity=_sha([cfg, synth_version()]))
+
+
+@dataclass(frozen=True)
+class Setting:
+    """Views used (a subset of the scene's initial views) and mask noise of generated scenes."""
+
+    views: int = 8
+    mask_noise: str = "grounded-sam-like"
+
+    @property
+    def label(self) -> str:
+        return f"{self.views}v/{self.mask_noise}"
+
+
+@dataclass(frozen=True)
+class Job:
+    """One (scene, method, setting). ``key`` is fixed when the job is planned (``plan_jobs``):
+    the code may change while a long run is going on (other work in the same tree), and a
+    result must come back under the key it was asked for."""
+
+    scene: SceneSpec
+    method: str
+    setting: Setting
+    cache_dir: str
+    key: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.key:
+            object.__setattr__(self, "key", job_key(self.scene, self.method, self.setting))
+
+
+def job_key(scene: SceneSpec, method: str, setting: Setting, version: str | None = None) -> str:
+    """Content hash of a job: scene identity, method config, setting and code version."""
+    return _sha([scene.identity, method, _method_config(method), asdict(setting), version or code_version()])
+
+
+@dataclass(frozen=True)
+class JobResult:
+    """One finished job: AP, time, memory, and the matches needed to pool AP over scenes.
+
+    Times are seconds, memory MiB. ``stages`` are (stage, seconds) as the method reported
+    them (``Segmentation.trace.timings`` for ours); ``wall_seconds`` is the whole call.
+    ``peak_traced_mb`` is tracemalloc's peak (Python + numpy allocations of the job);
+    ``maxrss_mb`` the worker's resident-set high-water mark after the job.
+    """
+
+    key: str
+    scene: str
+    difficulty: str
+    mean_occlusion: float
+    method: str
+    views: int
+    mask_noise: str
+    ap25: float
+    ap50: float
+    ap: float
+    per_threshold: tuple[tuple[float, float], ...]
+    num_gt: int
+    num_pred: int
+    stages: tuple[tuple[str, float], ...]
+    wall_seconds: float
+    peak_traced_mb: float
+    maxrss_mb: float
+    match_scores: tuple[float, ...] = ()
+    match_tp: tuple[tuple[bool, ...], ...] = ()
+    match_thresholds: tuple[float, ...] = ()
+    code_version: str = ""
+    cached: bool = field(default=False, compare=False)
+
+    @property
+    def seconds(self) -> float:
+        return float(sum(s for _, s in self.stages))
+
+    def to_json(self) -> dict:
+        d = asdict(self)
+        d.pop("cached")
+        return d
+
+    @staticmethod
+    def from_json(d: dict, cached: bool = False) -> "JobResult":
+        d = dict(d)
+        d["per_threshold"] = tuple((float(a), float(b)) for a, b in d["per_threshold"])
+        d["stages"] = tuple((str(a), float(b)) for a, b in d["stages"])
+        d["match_scores"] = tuple(d.get("match_scores", ()))
+        d["match_tp"] = tuple(tuple(bool(x) for x in row) for row in d.get("match_tp", ()))
+        d["match_thresholds"] = tuple(d.get("match_thresholds", ()))
+        return JobResult(**d, cached=cached)
+
+    def matches(self):
+        from clutt3r_core.evaluation.metrics import InstanceMatches
+
+        s = np.asarray(self.match_scores, np.float64)
+        tp = np.asarray(self.match_tp, bool).reshape(len(self.match_thresholds), len(s))
+        return InstanceMatches(np.asarray(self.match_thresholds), s, tp, self.num_gt, np.zeros((len(s), self.num_gt)))
+
+
+def _method_config(method: str) -> dict:
+    if method in PRESET_OF:
+        from clutt3r_core.config import PRESETS
+
+        return asdict(PRESETS[PRESET_OF[method]])
+    if method == "naive":
+        from clutt3r_core.baselines.naive import NaiveConfig
+
+        return asdict(NaiveConfig())
+    if method == "maskclustering":
+        from clutt3r_core.baselines.maskclustering import MaskClusteringConfig
+
+        return asdict(MaskClusteringConfig())
+    raise SceneError(f"unknown method '{method}'; choose from {', '.join(METHODS)}")
