@@ -1,5 +1,17 @@
 """Scene update from one post-interaction image (Sec. III-C): registry kind ``pose_optimizer``.
 
+The stages, each a pure function over typed data:
+
+1. ``associate`` (associate.py): the new view's mask tree is matched to the stored
+   instances (hierarchy-based: leaves first, spatial then semantic, parent substitution);
+   unmatched instances are removed or occluded, unmatched masks new.
+2. change detection (update.py): projected IoU with a z-buffer against the new mask,
+   below tau_IoU = displaced.
+3. ``PoseOptimizer.optimize(PoseProblem) -> PoseResult`` (pose.py, torch on the CPU):
+   the rigid motion of each displaced instance.
+4. ``apply_update`` / ``save_state`` (state.py): the new scene state, history kept, chained.
+
+``update_scene(state, view)`` runs 1-3 and returns an ``UpdateResult`` (``update.json``);
 ``UpdateFrame`` is what the viewer replays for one post-interaction frame.
 """
 
@@ -11,8 +23,37 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from clutt3r_core.scene import Camera
+from clutt3r_core.update.types import (
+    STATUSES,
+    AssociationConfig,
+    ChangeConfig,
+    InstanceUpdate,
+    NewMask,
+    PoseConfig,
+    PoseProblem,
+    PoseResult,
+    PoseTrace,
+    StageConfig,
+    UpdateConfig,
+    UpdateResult,
+)
 
-__all__ = ["UpdateFrame", "PoseOptimizer"]
+__all__ = [
+    "UpdateFrame",
+    "PoseOptimizer",
+    "STATUSES",
+    "AssociationConfig",
+    "ChangeConfig",
+    "InstanceUpdate",
+    "NewMask",
+    "PoseConfig",
+    "PoseProblem",
+    "PoseResult",
+    "PoseTrace",
+    "StageConfig",
+    "UpdateConfig",
+    "UpdateResult",
+]
 
 
 @dataclass(frozen=True, eq=False)
@@ -26,6 +67,7 @@ class UpdateFrame:
         point_instance: (N,) int32 instance per point of the run's cloud after the update
             (-1 = removed / none), or None when only the image is known.
         text: a markdown summary of what changed.
+        result: the full update (statuses, change masks, pose iterations), or None.
     """
 
     frame: int
@@ -33,15 +75,19 @@ class UpdateFrame:
     camera: Camera | None = None
     point_instance: np.ndarray | None = None
     text: str = ""
+    result: UpdateResult | None = None
 
 
 @runtime_checkable
 class PoseOptimizer(Protocol):
-    """Estimates the rigid motion of a displaced instance from one new image (Sec. III-C)."""
+    """Estimates the rigid motion of a displaced instance from one new image (Sec. III-C).
+
+    ``optimize`` must be deterministic for a given problem and record every iteration in
+    ``PoseResult.trace``.
+    """
 
     name: str
 
-    def optimize(self, problem: "object") -> "object":
-        """problem: the instance's points, colours, the new view and its mask -> the pose result
-        (types defined with the update stage)."""
+    def optimize(self, problem: PoseProblem) -> PoseResult:
+        """The instance's stored points, colours, the new view and its mask -> the motion."""
         ...

@@ -1,0 +1,280 @@
+"""Rigid pose update of one displaced instance from one new image, in torch on the CPU (Sec. III-C).
+
+Parameterisation (``PoseConfig.dof``):
+
+- ``se3``: a rotation vector w (axis-angle, radians, world axes) about the instance's centroid c
+  and a translation t (world metres): ``p' = R(w) (p - c) + c + t``, so
+  ``T_world = [[R, c + t - R c], [0, 1]]``. Rotating about c keeps rotation and translation
+  decoupled (a turn in place does not move the centroid), and t_z is directly the vertical
+  motion that L_reg,z penalises.
+- ``yaw``: w = (0, 0, theta): a turn about the world z axis through c, plus t (4 DoF).
+
+Objective (eq. 6): ``L = l_chamfer L_chamfer + l_photo L_photo + l_reg,z L_reg,z (+ l_depth L_depth)``
+
+- L_chamfer (eq. 7): bidirectional mean nearest distance between P, the projections of the
+  instance's *contour points* (visible points whose splat touches the edge of the current
+  projected silhouette) and C, the boundary pixels of the target mask eroded by the splat
+  radius (a splat centre lies that far inside the silhouette edge). Pixels divided by the
+  image diagonal (ours: the paper gives no unit; this keeps the Sec. IV weights meaningful
+  at any resolution).
+- L_photo: weighted L1 between point colours and the image sampled bilinearly at their
+  projections, in [0, 1] per channel; weight 1 for points visible at the current pose
+  (self z-buffer and not behind other instances), 0 otherwise.
+- L_reg,z: ``(t_z / sigma_z)^2``.
+- L_depth (ours, only when the new view has depth): Huber (1 cm) of the camera z of visible
+  points inside the mask against the new depth, in cm.
+
+Schedule: every yaw start of ``yaw_starts_deg`` runs ``probe_iterations`` coarse steps from
+the translation that puts the centroid on the ray through the mask centroid at its old
+height; the lowest coarse loss continues to ``coarse.iterations`` steps. If the IoU then
+reaches tau_IoU the optimisation ends (early exit, Sec. III-C), else the fine stage runs
+with the fine weights. Every step is recorded (pose, losses, IoU).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from scipy import ndimage
+
+from clutt3r_core.update.project import OCCLUSION_MARGIN, splat, splat_radius
+from clutt3r_core.update.types import LOSS_NAMES, PoseConfig, PoseProblem, PoseResult, PoseTrace, StageConfig
+
+__all__ = ["TorchPoseOptimizer", "motion_matrix", "initial_translation"]
+
+
+def motion_matrix(R: np.ndarray, c: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(4, 4) world motion of a rotation R about the point c followed by a translation t."""
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = c + t - R @ c
+    return T
+
+
+def initial_translation(problem: PoseProblem, centroid: np.ndarray) -> np.ndarray:
+    """(3,) translation that puts the centroid on the viewing ray of the mask's centroid, at its
+    old height (the objects rest on the table; L_reg,z keeps them there)."""
+    vs, us = np.nonzero(problem.mask)
+    if not len(us):
+        return np.zeros(3)
+    cam = problem.camera
+    ray_c = np.linalg.solve(cam.K, np.array([us.mean(), vs.mean(), 1.0]))
+    o = cam.T_world_camera[:3, 3]
+    d = cam.T_world_camera[:3, :3] @ ray_c
+    if abs(d[2]) > 1e-6 and (centroid[2] - o[2]) / d[2] > 0:
+        s = (centroid[2] - o[2]) / d[2]
+    else:  # a ray parallel to the table: keep the centroid's camera depth instead
+        s = float((cam.T_camera_world[:3, :3] @ centroid + cam.T_camera_world[:3, 3])[2])
+    return o + s * d - centroid
+
+
+class TorchPoseOptimizer:
+    """``PoseOptimizer`` (registry name ``torch-adam``): Adam over (w, t), see the module docstring."""
+
+    name = "torch-adam"
+
+    def __init__(self, config: PoseConfig | None = None, threads: int = 1) -> None:
+        import torch  # heavy import at construction, as every backend
+
+        self._torch = torch
+        self.config = config or PoseConfig()
+        # Small problems: one thread avoids OpenMP overhead and leaves the other core free.
+        self.threads = int(threads)
+
+    def optimize(self, problem: PoseProblem) -> PoseResult:
+        torch = self._torch
+        prev_threads = torch.get_num_threads()
+        torch.set_num_threads(self.threads)
+        try:
+            return _Solver(problem, self.config, torch).run()
+        finally:
+            torch.set_num_threads(prev_threads)
+
+
+class _Solver:
+    def __init__(self, pb: PoseProblem, cfg: PoseConfig, torch) -> None:
+        t0 = time.perf_counter()
+        self.pb, self.cfg, self.torch = pb, cfg, torch
+        self.t_start = t0
+        cam = pb.camera
+        H, W = cam.height, cam.width
+        self.H, self.W = H, W
+        self.diag = float(np.hypot(H, W))
+        pts = pb.points.astype(np.float64)
+        self.all_points = pts
+        self.c = pts.mean(axis=0)
+        rng = np.random.default_rng(0)
+        sub = np.sort(rng.choice(len(pts), cfg.max_points, replace=False)) if len(pts) > cfg.max_points else np.arange(len(pts))
+        self.sub_scale = float(np.sqrt(len(pts) / len(sub)))  # sparser points: bigger splats close the silhouette
+        self.p = torch.tensor(pts[sub] - self.c, dtype=torch.float64)
+        self.col = torch.tensor(pb.colors[sub].astype(np.float64) / 255.0)
+        Tcw = cam.T_camera_world
+        self.Rcw = torch.tensor(Tcw[:3, :3])
+        self.tcw = torch.tensor(Tcw[:3, 3])
+        self.c_t = torch.tensor(self.c)
+        self.K = cam.K
+        self.img = torch.tensor(pb.rgb.astype(np.float32) / 255.0).permute(2, 0, 1)[None].double()
+        self.mask = pb.mask
+        self.occ2d = pb.occluder_depth.astype(np.float64)
+        self.depth = self.depth2d = None if pb.depth is None else pb.depth.astype(np.float64)
+        self.mask_area = int(np.count_nonzero(pb.mask))
+        # target contour: boundary of the mask eroded by the typical splat radius
+        z0 = (pts @ Tcw[:3, :3].T + Tcw[:3, 3])[:, 2]
+        r = int(np.median(splat_radius(z0[z0 > 0], cam, pb.voxel_size))) if (z0 > 0).any() else 1
+        eroded = ndimage.binary_erosion(pb.mask, iterations=r) if r > 0 else pb.mask
+        if not eroded.any():
+            eroded = pb.mask
+        edge = eroded & ~ndimage.binary_erosion(eroded)
+        vs, us = np.nonzero(edge)
+        step = max(1, int(np.ceil(len(us) / cfg.max_contour)))
+        self.C = torch.tensor(np.stack([us[::step], vs[::step]], axis=1).astype(np.float64))
+        self.z_axis = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
+
+    # -- geometry ------------------------------------------------------------------------
+    def rotation(self, w):
+        """Rodrigues' formula (differentiable; the small-angle branch avoids 0/0 at w = 0)."""
+        torch = self.torch
+        theta2 = (w * w).sum()
+        zero = torch.zeros((), dtype=torch.float64)
+        Kx = torch.stack([torch.stack([zero, -w[2], w[1]]), torch.stack([w[2], zero, -w[0]]),
+                          torch.stack([-w[1], w[0], zero])])
+        if float(theta2.detach()) < 1e-12:
+            return torch.eye(3, dtype=torch.float64) + Kx
+        theta = theta2.sqrt()
+        return (torch.eye(3, dtype=torch.float64) + torch.sin(theta) / theta * Kx
+                + (1 - torch.cos(theta)) / theta2 * (Kx @ Kx))
+
+    def rotvec(self, params):
+        return params["yaw"] * self.z_axis if self.cfg.dof == "yaw" else params["w"]
+
+    def matrix(self, params) -> np.ndarray:
+        with self.torch.no_grad():
+            R = self.rotation(self.rotvec(params)).numpy()
+            return motion_matrix(R, self.c, params["t"].numpy())
+
+    # -- one evaluation ------------------------------------------------------------------
+    def losses(self, params, stage: StageConfig):
+        torch, pb, cfg = self.torch, self.pb, self.cfg
+        R = self.rotation(self.rotvec(params))
+        pw = self.p @ R.T + self.c_t + params["t"]
+        pc = pw @ self.Rcw.T + self.tcw
+        z = pc[:, 2].clamp(min=1e-3)
+        u = self.K[0, 0] * pc[:, 0] / z + self.K[0, 2]
+        v = self.K[1, 1] * pc[:, 1] / z + self.K[1, 2]
+        uv = torch.stack([u, v], dim=1)
+        # non-differentiable selection: visibility and contour membership at the current pose
+        zn = pc[:, 2].detach().numpy()
+        sp = splat(pw.detach().numpy(), pb.camera, pb.voxel_size, self.sub_scale)
+        inside = sp.centre >= 0
+        cflat = np.maximum(sp.centre, 0)
+        zb = sp.zbuf.reshape(-1)
+        occ = sp.crop(self.occ2d).reshape(-1)
+        vis = inside & (zn <= zb[cflat] + OCCLUSION_MARGIN) & (zn <= occ[cflat] + OCCLUSION_MARGIN)
+        if vis.any():
+            sil = np.isfinite(sp.zbuf) & (sp.zbuf <= sp.crop(self.occ2d) + OCCLUSION_MARGIN)
+            # distance to the nearest pixel outside the silhouette (the window's border is outside)
+            dist_out = ndimage.distance_transform_edt(np.pad(sil, 1))[1:-1, 1:-1]
+            contour = vis & (dist_out.reshape(-1)[cflat] <= sp.radius + 1.5)
+        else:
+            contour = vis
+        P = uv[torch.from_numpy(contour)] if contour.any() else uv
+        if len(self.C) and len(P):
+            d = torch.cdist(P, self.C)
+            chamfer = (d.min(dim=1).values.mean() + d.min(dim=0).values.mean()) / self.diag
+        else:
+            chamfer = torch.zeros((), dtype=torch.float64)
+        wv = torch.from_numpy(vis.astype(np.float64))
+        if vis.any():
+            grid = torch.stack([2 * u / (self.W - 1) - 1, 2 * v / (self.H - 1) - 1], dim=1)[None, None]
+            sampled = torch.nn.functional.grid_sample(self.img, grid, align_corners=True)[0, :, 0].T
+            photo = ((sampled - self.col).abs().mean(dim=1) * wv).sum() / wv.sum()
+        else:
+            photo = torch.zeros((), dtype=torch.float64)
+        reg_z = (params["t"][2] / cfg.sigma_z) ** 2
+        depth_term = torch.zeros((), dtype=torch.float64)
+        if self.depth is not None:
+            dn = sp.crop(self.depth2d).reshape(-1)[cflat]
+            ok = vis & sp.crop(self.mask).reshape(-1)[cflat] & np.isfinite(dn)
+            if ok.any():
+                okt = torch.from_numpy(ok)
+                err = (pc[:, 2][okt] - torch.from_numpy(dn[ok])) / 0.01
+                depth_term = torch.nn.functional.huber_loss(err, torch.zeros_like(err), delta=1.0)
+        total = (stage.lambda_chamfer * chamfer + stage.lambda_photo * photo + stage.lambda_reg_z * reg_z
+                 + (cfg.lambda_depth * depth_term if self.depth is not None else 0.0))
+        return total, (chamfer, photo, reg_z, depth_term)
+
+    def iou(self, T: np.ndarray) -> float:
+        """IoU of the z-buffered projection of all points at motion T with the target mask."""
+        p = self.all_points @ T[:3, :3].T + T[:3, 3]
+        sp = splat(p, self.pb.camera, self.pb.voxel_size)
+        if not (sp.h and sp.w):
+            return 0.0
+        sil = np.isfinite(sp.zbuf) & (sp.zbuf <= sp.crop(self.occ2d) + OCCLUSION_MARGIN)
+        inter = int(np.count_nonzero(sil & sp.crop(self.mask)))
+        union = int(np.count_nonzero(sil)) + self.mask_area - inter
+        return inter / union if union else 0.0
+
+    # -- the schedule ----------------------------------------------------------------------
+    def new_params(self, yaw0: float, t0: np.ndarray):
+        torch = self.torch
+        t = torch.tensor(t0, dtype=torch.float64, requires_grad=True)
+        if self.cfg.dof == "yaw":
+            r = torch.tensor(yaw0, dtype=torch.float64, requires_grad=True)
+            params = {"yaw": r, "t": t}
+        else:
+            r = torch.tensor([0.0, 0.0, yaw0], dtype=torch.float64, requires_grad=True)
+            params = {"w": r, "t": t}
+        opt = torch.optim.Adam([{"params": [r], "lr": self.cfg.lr_rotation},
+                                {"params": [t], "lr": self.cfg.lr_translation}])
+        return params, opt
+
+    def steps(self, params, opt, stage: StageConfig, stage_id: int, n: int, log: list, decay: bool = True) -> None:
+        base = [self.cfg.lr_rotation, self.cfg.lr_translation]
+        for i in range(n):
+            # exponential decay to 10 % over the stage (ours): large steps to travel, small to settle
+            f = 0.1 ** (i / max(n - 1, 1)) if decay else 1.0
+            for g, lr in zip(opt.param_groups, base):
+                g["lr"] = lr * f
+            opt.zero_grad()
+            total, terms = self.losses(params, stage)
+            T = self.matrix(params)
+            log.append((stage_id, T, [float(total.detach())] + [float(x.detach()) for x in terms], self.iou(T)))
+            total.backward()
+            opt.step()
+
+    def final(self, params, stage: StageConfig, stage_id: int, log: list) -> None:
+        with self.torch.no_grad():
+            total, terms = self.losses(params, stage)
+        T = self.matrix(params)
+        log.append((stage_id, T, [float(total.detach())] + [float(x.detach()) for x in terms], self.iou(T)))
+
+    def run(self) -> PoseResult:
+        cfg = self.cfg
+        iou_before = self.iou(np.eye(4))
+        t0 = initial_translation(self.pb, self.c)
+        best = None
+        for yaw in cfg.yaw_starts_deg:
+            params, opt = self.new_params(np.deg2rad(yaw), t0)
+            log: list = []
+            self.steps(params, opt, cfg.coarse, 0, min(cfg.probe_iterations, cfg.coarse.iterations), log, decay=False)
+            with self.torch.no_grad():
+                score = float(self.losses(params, cfg.coarse)[0])
+            if best is None or score < best[0]:
+                best = (score, params, opt, log)
+        _, params, opt, log = best
+        self.steps(params, opt, cfg.coarse, 0, max(0, cfg.coarse.iterations - cfg.probe_iterations), log)
+        self.final(params, cfg.coarse, 0, log)
+        stages = 1
+        if not (cfg.early_exit and log[-1][3] >= cfg.tau_iou) and cfg.fine.iterations > 0:
+            stages = 2
+            self.steps(params, opt, cfg.fine, 1, cfg.fine.iterations, log)
+            self.final(params, cfg.fine, 1, log)
+        trace = PoseTrace(
+            stage=np.array([r[0] for r in log], np.int8),
+            T_world=np.stack([r[1] for r in log]),
+            losses=np.array([r[2] for r in log], np.float64).reshape(-1, len(LOSS_NAMES)),
+            iou=np.array([r[3] for r in log], np.float64),
+        )
+        return PoseResult(T_world=trace.T_world[-1], iou_before=iou_before, iou_after=float(trace.iou[-1]),
+                          trace=trace, stages=stages, seconds=time.perf_counter() - self.t_start)

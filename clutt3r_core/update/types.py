@@ -1,0 +1,359 @@
+"""Typed configs, problems and results of the scene update (Sec. III-C).
+
+Everything is a frozen dataclass of numpy arrays, checked on construction. Units:
+metres, radians, seconds, pixels; poses follow docs/conventions.md (``T_world`` of an
+update is a world-frame motion: ``p_new = T_world @ p_old``, ``pose_new = T_world @ pose_old``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from clutt3r_core.errors import SceneError
+from clutt3r_core.scene import Camera, check_rigid
+
+__all__ = [
+    "Status",
+    "STATUSES",
+    "StageConfig",
+    "PoseConfig",
+    "AssociationConfig",
+    "ChangeConfig",
+    "UpdateConfig",
+    "PoseProblem",
+    "PoseTrace",
+    "PoseResult",
+    "InstanceUpdate",
+    "NewMask",
+    "UpdateResult",
+]
+
+Status = Literal["static", "displaced", "removed", "occluded"]
+STATUSES: tuple[str, ...] = ("static", "displaced", "removed", "occluded")
+
+LOSS_NAMES: tuple[str, ...] = ("total", "chamfer", "photo", "reg_z", "depth")
+"""Columns of ``PoseTrace.losses`` (unweighted terms, plus the weighted total)."""
+
+
+def _ro(a: np.ndarray) -> np.ndarray:
+    a = np.ascontiguousarray(a)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True)
+class StageConfig:
+    """One stage of the coarse-to-fine pose optimisation (Sec. III-C, eq. 6; weights Sec. IV)."""
+
+    lambda_chamfer: float
+    """Weight of L_chamfer (Sec. IV: 50.0 coarse, 10.0 fine)."""
+    lambda_photo: float
+    """Weight of L_photo (Sec. IV: 0.5 coarse, 2.0 fine)."""
+    lambda_reg_z: float
+    """Weight of L_reg,z (Sec. IV: 10.0 coarse, 1.0 fine)."""
+    iterations: int
+    """Adam steps of the stage (ours: the paper gives no count; 60 + 40 measured enough on the
+    generated pairs, docs/update.md, and keeps an update under 3 s)."""
+
+
+@dataclass(frozen=True)
+class PoseConfig:
+    """Rigid pose update of a displaced instance (Sec. III-C "Change Detection and Instance-wise Update")."""
+
+    coarse: StageConfig = StageConfig(50.0, 0.5, 10.0, 60)
+    """Sec. IV stage 1 weights (chamfer, photo, reg_z) = (50, 0.5, 10); iterations ours."""
+    fine: StageConfig = StageConfig(10.0, 2.0, 1.0, 40)
+    """Sec. IV stage 2 weights (10, 2.0, 1.0); iterations ours."""
+    tau_iou: float = 0.75
+    """Sec. IV tau_IoU: the coarse stage ends the optimisation when its IoU reaches this."""
+    early_exit: bool = True
+    """Sec. III-C: skip the fine stage when the coarse IoU >= tau_iou. False always refines (ours)."""
+    dof: Literal["se3", "yaw"] = "se3"
+    """se3: axis-angle rotation about the instance centroid + translation (6 DoF);
+    yaw: rotation about the world z axis through the centroid + translation (4 DoF)."""
+    lambda_depth: float = 1.0
+    """Ours: weight of the depth term (Huber of point z vs the new depth, in cm) used only when
+    the new view has depth ("use the new depth when it exists", issue 10)."""
+    sigma_z: float = 0.02
+    """Ours: L_reg,z = (t_z / sigma_z)^2 with t_z the vertical motion of the centroid in metres
+    (the paper does not give the form; 2 cm makes 2 cm of lift cost as much as the whole
+    chamfer term of a 0.5 %-of-diagonal misfit at weight 50 vs 10)."""
+    lr_rotation: float = 0.03
+    """Ours: Adam step on the rotation vector, radians."""
+    lr_translation: float = 0.004
+    """Ours: Adam step on the translation, metres."""
+    yaw_starts_deg: tuple[float, ...] = (0.0, 40.0, -40.0, 80.0, -80.0, 180.0)
+    """Ours: initial yaw hypotheses; each runs ``probe_iterations`` coarse steps and the best
+    (lowest coarse loss) continues. The push of a neighbour turns it 20-60 deg, more than a
+    chamfer descent from 0 recovers reliably."""
+    probe_iterations: int = 15
+    """Ours: coarse steps per yaw hypothesis before the best one is kept."""
+    max_points: int = 600
+    """Ours: the optimisation uses at most this many of the instance's points (uniform
+    subsample, fixed seed); IoU is measured on all of them."""
+    max_contour: int = 400
+    """Ours: the target contour is subsampled to at most this many pixels."""
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.tau_iou <= 1.0:
+            raise SceneError(f"PoseConfig.tau_iou must be in (0, 1], got {self.tau_iou}")
+        if self.dof not in ("se3", "yaw"):
+            raise SceneError(f"PoseConfig.dof must be 'se3' or 'yaw', got {self.dof!r}")
+        if self.coarse.iterations < 0 or self.fine.iterations < 0 or self.probe_iterations < 0:
+            raise SceneError("PoseConfig: iteration counts must be >= 0")
+        if not self.yaw_starts_deg:
+            raise SceneError("PoseConfig.yaw_starts_deg needs at least one start")
+
+
+@dataclass(frozen=True)
+class AssociationConfig:
+    """Matching the new view's masks to the stored instances (Sec. III-C.2; rules in associate.py)."""
+
+    tau_spat: float = 0.5
+    """Sec. IV tau_spat, reused: stage 1 matches a leaf to an instance when the 2D IoU of the
+    mask with the instance's z-buffered projection is >= this."""
+    tau_sem: float = 0.65
+    """Sec. IV tau_sem, reused: stage 2 matches by cosine of the mask embedding and the stored
+    instance embedding when it is >= this."""
+    hidden_fraction: float = 0.3
+    """Ours: an unmatched instance whose z-buffered projection keeps less than this fraction of
+    its own unoccluded projection (or that projects outside the image) is ``occluded``."""
+    nearer_margin: float = 0.02
+    """Ours, with new depth only: a pixel of an unmatched instance's projection is covered by
+    something in front when the new depth is this much (m) nearer than the stored point."""
+    part_fraction: float = 0.5
+    """Ours: an unmatched mask lying at least this fraction inside a matched mask is a part of
+    that instance (over-segmentation), not a new object."""
+
+
+@dataclass(frozen=True)
+class ChangeConfig:
+    """Change detection by projected IoU (Sec. III-C.3)."""
+
+    tau_iou: float = 0.75
+    """Sec. IV tau_IoU: a matched instance with IoU(projection, new mask) below this is displaced."""
+    splat_scale: float = 1.0
+    """Ours: a point is splatted as a square of half-size ``splat_scale * voxel * f / z / 2``
+    pixels, voxel = the cloud's voxel size (5 mm, Sec. IV), so neighbouring points close the
+    silhouette."""
+
+
+@dataclass(frozen=True)
+class UpdateConfig:
+    """Every stage of one scene update."""
+
+    association: AssociationConfig = field(default_factory=AssociationConfig)
+    change: ChangeConfig = field(default_factory=ChangeConfig)
+    pose: PoseConfig = field(default_factory=PoseConfig)
+    optimizer: str = "torch-adam"
+    """Registry kind ``pose_optimizer``: the backend that solves each displaced instance."""
+    voxel_size: float = 0.005
+    """Spacing of the stored points, metres (Sec. IV 5 mm; the run's PointCloudConfig.voxel_size)."""
+
+
+@dataclass(frozen=True, eq=False)
+class PoseProblem:
+    """One displaced instance to align with the new view (input of a ``PoseOptimizer``).
+
+    Attributes:
+        instance: the run's instance id (for messages and records).
+        points: (N, 3) float32 world metres, the instance's stored points (pre-interaction pose).
+        colors: (N, 3) uint8 their colours.
+        camera: the new view's camera.
+        rgb: (H, W, 3) uint8 the new image.
+        mask: (H, W) bool the instance's new mask (the associated mask candidate).
+        occluder_depth: (H, W) float32 camera z (m) of the nearest OTHER instance at each pixel
+            (inf where none): points behind it are hidden and not compared.
+        depth: (H, W) float32 new z-depth in metres, NaN = hole; None when the view has none.
+        voxel_size: spacing of the points, metres (sets the splat size).
+    """
+
+    instance: int
+    points: np.ndarray
+    colors: np.ndarray
+    camera: Camera
+    rgb: np.ndarray
+    mask: np.ndarray
+    occluder_depth: np.ndarray
+    depth: np.ndarray | None = None
+    voxel_size: float = 0.005
+
+    def __post_init__(self) -> None:
+        H, W = self.camera.height, self.camera.width
+        p = np.asarray(self.points, np.float32)
+        if p.ndim != 2 or p.shape[1] != 3 or len(p) == 0:
+            raise SceneError(f"instance {self.instance}: points must be (N>0, 3), got {p.shape}")
+        c = np.asarray(self.colors)
+        if c.shape != p.shape or c.dtype != np.uint8:
+            raise SceneError(f"instance {self.instance}: colors must be (N, 3) uint8 like points")
+        if self.rgb.shape != (H, W, 3) or self.rgb.dtype != np.uint8:
+            raise SceneError(f"instance {self.instance}: rgb must be ({H}, {W}, 3) uint8, got {self.rgb.shape}")
+        m = np.asarray(self.mask, bool)
+        if m.shape != (H, W):
+            raise SceneError(f"instance {self.instance}: mask must be ({H}, {W}), got {m.shape}")
+        occ = np.asarray(self.occluder_depth, np.float32)
+        if occ.shape != (H, W):
+            raise SceneError(f"instance {self.instance}: occluder_depth must be ({H}, {W}), got {occ.shape}")
+        object.__setattr__(self, "points", _ro(p))
+        object.__setattr__(self, "colors", _ro(c))
+        object.__setattr__(self, "mask", _ro(m))
+        object.__setattr__(self, "occluder_depth", _ro(occ))
+        if self.depth is not None:
+            d = np.asarray(self.depth, np.float32)
+            if d.shape != (H, W):
+                raise SceneError(f"instance {self.instance}: depth must be ({H}, {W}), got {d.shape}")
+            object.__setattr__(self, "depth", _ro(d))
+        if not self.voxel_size > 0:
+            raise SceneError(f"instance {self.instance}: voxel_size must be > 0")
+
+
+@dataclass(frozen=True, eq=False)
+class PoseTrace:
+    """Every iteration of one pose optimisation, in order (the replay of the viewer).
+
+    Attributes:
+        stage: (I,) int8, 0 = coarse (incl. the chosen yaw start's probe steps), 1 = fine.
+        T_world: (I, 4, 4) float64 the motion after the step (p_new = T @ p_old).
+        losses: (I, 5) float64 columns ``LOSS_NAMES`` = total (weighted), chamfer (fraction of the
+            image diagonal), photo (mean |rgb| in [0, 1]), reg_z ((t_z/sigma_z)^2), depth (cm, 0 without depth).
+        iou: (I,) float64 IoU of the z-buffered projection with the target mask after the step.
+    """
+
+    stage: np.ndarray
+    T_world: np.ndarray
+    losses: np.ndarray
+    iou: np.ndarray
+
+    def __post_init__(self) -> None:
+        n = len(self.stage)
+        if self.T_world.shape != (n, 4, 4) or self.losses.shape != (n, len(LOSS_NAMES)) or self.iou.shape != (n,):
+            raise SceneError(f"PoseTrace: stage ({n},), T_world ({n},4,4), losses ({n},5), iou ({n},) must agree")
+        for name in ("stage", "T_world", "losses", "iou"):
+            object.__setattr__(self, name, _ro(getattr(self, name)))
+
+    def __len__(self) -> int:
+        return len(self.stage)
+
+
+@dataclass(frozen=True, eq=False)
+class PoseResult:
+    """Output of a ``PoseOptimizer``.
+
+    Attributes:
+        T_world: (4, 4) float64 rigid world-frame motion, ``p_new = T_world @ p_old``.
+        iou_before: IoU of the unmoved projection with the mask.
+        iou_after: IoU at ``T_world``.
+        trace: every iteration.
+        stages: stages run (1 = coarse only, early exit; 2 = coarse and fine).
+        seconds: wall time.
+    """
+
+    T_world: np.ndarray
+    iou_before: float
+    iou_after: float
+    trace: PoseTrace
+    stages: int
+    seconds: float
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "T_world", _ro(check_rigid(self.T_world, "pose update T_world")))
+
+
+@dataclass(frozen=True, eq=False)
+class InstanceUpdate:
+    """What happened to one stored instance.
+
+    Attributes:
+        instance: the run's instance id.
+        status: static | displaced | removed | occluded.
+        iou_before: IoU of the stored projection with its new mask (None: no mask matched).
+        iou_after: IoU after the update (the same for static; None when unmatched).
+        T_world: (4, 4) world-frame motion for displaced, None otherwise.
+        mask_id: id of the associated mask candidate of the new view, or -1.
+        match: how the mask was matched: "spatial", "semantic", "parent-spatial",
+            "parent-semantic" or "" when unmatched.
+        pose: the optimisation record (displaced only).
+    """
+
+    instance: int
+    status: str
+    iou_before: float | None
+    iou_after: float | None
+    T_world: np.ndarray | None
+    mask_id: int = -1
+    match: str = ""
+    pose: PoseResult | None = None
+
+    def __post_init__(self) -> None:
+        if self.status not in STATUSES:
+            raise SceneError(f"instance {self.instance}: status must be one of {STATUSES}, got {self.status!r}")
+        if (self.T_world is None) != (self.status != "displaced"):
+            raise SceneError(f"instance {self.instance}: T_world is given exactly for displaced instances")
+        if self.T_world is not None:
+            object.__setattr__(self, "T_world", _ro(check_rigid(self.T_world, f"instance {self.instance} T_world")))
+
+
+@dataclass(frozen=True)
+class NewMask:
+    """A mask of the new view that matched no stored instance (a new or newly revealed object)."""
+
+    mask_id: int
+    area_px: int
+
+
+@dataclass(frozen=True, eq=False)
+class UpdateResult:
+    """The scene update for one post-interaction frame (what ``update.json`` holds).
+
+    Attributes:
+        frame: the frame index of the new view.
+        instances: one record per instance present before the update, by id.
+        new_masks: unmatched masks of the new view.
+        change_masks: (K, H, W) bool, for ``instances`` in order: the instance's associated new
+            mask (all False when unmatched) -- what the viewer draws as change masks.
+        projected: (H, W) int32 instance id of the z-buffered projection before the update (-1 none).
+        time_s: wall time of the whole update.
+    """
+
+    frame: int
+    instances: tuple[InstanceUpdate, ...]
+    new_masks: tuple[NewMask, ...]
+    change_masks: np.ndarray
+    projected: np.ndarray
+    time_s: float
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "instances", tuple(self.instances))
+        if self.change_masks.ndim != 3 or self.change_masks.shape[0] != len(self.instances):
+            raise SceneError("UpdateResult.change_masks must be (K, H, W) with one mask per instance record")
+        object.__setattr__(self, "change_masks", _ro(np.asarray(self.change_masks, bool)))
+        object.__setattr__(self, "projected", _ro(np.asarray(self.projected, np.int32)))
+
+    def by_status(self, status: str) -> tuple[int, ...]:
+        return tuple(r.instance for r in self.instances if r.status == status)
+
+    def record(self, instance: int) -> InstanceUpdate:
+        for r in self.instances:
+            if r.instance == instance:
+                return r
+        raise KeyError(f"no instance {instance} in the update of frame {self.frame}")
+
+    def to_json(self) -> dict:
+        """The ``update.json`` schema of issue 10."""
+        def f(x: float | None) -> float | None:
+            return None if x is None else round(float(x), 6)
+
+        return {
+            "frame": int(self.frame),
+            "instances": [
+                {"instance": int(r.instance), "status": r.status, "iou_before": f(r.iou_before),
+                 "iou_after": f(r.iou_after),
+                 "T_world": None if r.T_world is None else np.round(r.T_world, 8).tolist()}
+                for r in self.instances
+            ],
+            "new_masks": [{"mask": int(m.mask_id), "area_px": int(m.area_px)} for m in self.new_masks],
+            "time_s": round(float(self.time_s), 4),
+        }
