@@ -14,7 +14,7 @@ are dropped), so the instance output is the same form as ``Segmentation``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -24,7 +24,7 @@ from clutt3r_core.scene import Scene
 from clutt3r_core.segmentation.trace import StageClock, StageTiming
 from clutt3r_core.segmentation.vote import renumber_by_score
 
-__all__ = ["Prediction", "MaskEvidence", "mask_evidence", "assign_by_majority", "StageClock"]
+__all__ = ["Prediction", "MaskEvidence", "mask_evidence", "assign_by_majority", "run_baseline", "StageClock"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -172,3 +172,20 @@ def assign_by_majority(
     pts = np.bincount(label[label >= 0], weights=ev.counts[label >= 0], minlength=g)
     inst, alive = renumber_by_score(label, size, pts >= min_instance_points)
     return inst, size[alive].astype(np.float32)
+
+
+def run_baseline(
+    scene: Scene,
+    method: str,
+    group: Callable[[MaskEvidence], Sequence[Sequence[int]]],
+    min_instance_points: int,
+) -> Prediction:
+    """A baseline end to end: the shared front end, the baseline's ``group``ing of the masks,
+    then ``assign_by_majority``; timed per stage."""
+    clock = StageClock()
+    ev = mask_evidence(scene, clock=clock)
+    with clock("grouping"):
+        groups = group(ev)
+    with clock("vote"):
+        inst, scores = assign_by_majority(ev, groups, min_instance_points)
+    return Prediction(ev.points, inst, scores, tuple(clock.items), method)

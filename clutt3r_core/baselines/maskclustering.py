@@ -33,7 +33,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from clutt3r_core.baselines.common import MaskEvidence, Prediction, StageClock, assign_by_majority, mask_evidence
+from clutt3r_core.baselines.common import MaskEvidence, Prediction, run_baseline
 from clutt3r_core.scene import Scene
 
 __all__ = ["MaskClusteringConfig", "consensus_rate", "maskclustering_groups", "maskclustering_baseline"]
@@ -112,10 +112,5 @@ def maskclustering_groups(ev: MaskEvidence, cfg: MaskClusteringConfig = MaskClus
 
 def maskclustering_baseline(scene: Scene, cfg: MaskClusteringConfig = MaskClusteringConfig()) -> Prediction:
     """MaskClustering re-implementation (module docstring) on ``scene``'s initial views."""
-    clock = StageClock()
-    ev = mask_evidence(scene, clock=clock)
-    with clock("grouping"):
-        groups = maskclustering_groups(ev, cfg)
-    with clock("vote"):
-        inst, scores = assign_by_majority(ev, groups, cfg.min_instance_points)
-    return Prediction(ev.points, inst, scores, tuple(clock.items), "maskclustering-reimpl")
+    return run_baseline(scene, "maskclustering-reimpl", lambda ev: maskclustering_groups(ev, cfg),
+                        cfg.min_instance_points)

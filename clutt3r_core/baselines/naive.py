@@ -20,7 +20,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from clutt3r_core.baselines.common import MaskEvidence, Prediction, StageClock, assign_by_majority, mask_evidence
+from clutt3r_core.baselines.common import MaskEvidence, Prediction, run_baseline
 from clutt3r_core.scene import Scene
 
 __all__ = ["NaiveConfig", "naive_groups", "naive_baseline"]
@@ -62,10 +62,4 @@ def naive_groups(ev: MaskEvidence, cfg: NaiveConfig = NaiveConfig()) -> list[lis
 
 def naive_baseline(scene: Scene, cfg: NaiveConfig = NaiveConfig()) -> Prediction:
     """Naive baseline on ``scene``'s initial views (module docstring)."""
-    clock = StageClock()
-    ev = mask_evidence(scene, clock=clock)
-    with clock("grouping"):
-        groups = naive_groups(ev, cfg)
-    with clock("vote"):
-        inst, scores = assign_by_majority(ev, groups, cfg.min_instance_points)
-    return Prediction(ev.points, inst, scores, tuple(clock.items), "naive")
+    return run_baseline(scene, "naive", lambda ev: naive_groups(ev, cfg), cfg.min_instance_points)
