@@ -318,4 +318,9 @@ del _name, _desc
 
 # -- grasp planners (issue 9): register below this line -----------------------------------------
 
+register_backend(
+    "grasp_planner", "antipodal", "clutt3r_core.grasping.antipodal:AntipodalPlanner",
+    description="analytic antipodal pairs on the target, cloud + unseen-space collisions (ours)", priority=1,
+)
+
 # -- pose optimisers (issue 10): register below this line ---------------------------------------

@@ -1,0 +1,552 @@
+"""The built-in analytic antipodal grasp planner (registry: ``grasp_planner`` ``antipodal``).
+
+``plan_antipodal(request, config) -> GraspSet``, a pure function, in five steps:
+
+1. **Contact pairs.** Up to ``max_first_contacts`` target points ``p`` are paired with up to
+   ``max_second_contacts`` target points ``q``. A pair is antipodal when the line p -> q lies
+   within ``pair_angle_deg`` of the inward normal at both ends (``-n_p`` at p, ``-n_q`` at q;
+   the fused normals point outwards, towards the cameras) and ``|q - p|`` fits the hand
+   (``min_pair_distance`` .. ``max_width - 2 * min_finger_margin``). The best pairs, one per
+   (1 cm centre cell, closing-axis bin), are kept (``max_pairs``).
+2. **Gripper fit.** The closing axis x is p -> q; the opening is ``|q - p| + 2 * finger_margin``
+   (capped at the hand's maximum); the approach z is swept around x in ``approach_steps``
+   angles starting from the preferred approach, and the grasp centre is shifted along z by
+   each ``depth_offsets`` (positive = deeper: the contacts move towards the palm).
+3. **Collisions against the whole fused cloud** (support included). Fingers and the closing
+   region are tested exactly: the cloud points near each pair centre (one k-d tree ball query
+   per pair) are put into every candidate's gripper frame. A candidate is dropped when any
+   point lies in a finger box grown by ``collision_pad``, when the closing region holds fewer
+   than ``min_target_points`` target points or more than ``max_foreign_points`` other points
+   ("holds the target and nothing else"). The palm, far larger, is tested on a 5 mm distance
+   grid (Euclidean distance transform of the occupied cells around the target): each palm
+   sample point must be farther from any occupied cell than its cover radius plus the grid's
+   worst-case error (``cell * sqrt(3)``) plus ``collision_pad``. This is conservative: the palm
+   keeps about 2 cm from everything, never less than ``collision_pad``.
+4. **Unseen space.** Space no camera has seen as free is occupied (the hidden backs of
+   objects, the inside of the table). A grid cell centre is *unseen-occupied* when at least
+   one view sees its pixel (inside the image, valid depth) and *every* view that sees its
+   pixel has it more than ``hidden_tolerance`` behind the observed depth. Pixels outside an
+   image or on a depth hole say nothing; a cell no view sees is free (nothing can be said about
+   it, and the table edge would otherwise close every approach). Finger and palm sample points
+   may not fall in an unseen-occupied cell. With no views in the request this step is skipped
+   (cloud-only checks, reported in the result's message).
+5. **Score and rank.** ``score = sum(w_i * s_i) / sum(w_i)`` with every term in [0, 1]:
+   - antipodality ``s_a``: ``(cos a - cos a_max) / (1 - cos a_max)`` with ``a`` the larger of the
+     two angles between the closing line and the inward normals (1 = perfectly opposed);
+   - approach ``s_p``: ``(1 + z . preferred_approach) / 2`` (1 = straight along the preferred
+     direction, from above by default; 0 = the opposite);
+   - clearance ``s_c``: the smallest distance from any finger or palm sample point to the cloud
+     (distance grid), minus the acceptance threshold of that part, over ``clearance_saturation``,
+     clipped to [0, 1] (more room for calibration and pose error);
+   - centring ``s_m``: ``exp(-d / centring_scale)`` with ``d`` the distance from the target's
+     centroid to the closing axis line (a grasp through the centre of mass resists torque).
+   Greedy non-maximum suppression removes near-duplicates (centres within ``nms_distance`` and
+   approach and closing axes within ``nms_angle_deg``, the closing axis up to sign since the
+   hand is symmetric), then the best ``max_grasps`` are returned, best first.
+
+No grasp found is an empty ``GraspSet`` whose ``message`` says which stage removed the
+candidates; nothing raises for a hard scene.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from clutt3r_core.errors import SceneError
+from clutt3r_core.grasping import DepthView, GraspRequest, GraspSet
+from clutt3r_core.grasping.gripper import FRANKA, GripperGeometry, box_grid
+
+__all__ = ["AntipodalConfig", "AntipodalPlanner", "plan_antipodal", "unseen_occupied", "PlanStats"]
+
+
+@dataclass(frozen=True)
+class AntipodalConfig:
+    """Settings of the antipodal planner (every field ours; the reason is given per field)."""
+
+    gripper: GripperGeometry = FRANKA
+    """The hand (docs/conventions.md, "Gripper")."""
+    seed: int = 0
+    """Seed of the contact subsampling (the result is deterministic for a seed)."""
+    max_first_contacts: int = 192
+    """First contacts p sampled from the target (bounds the pair matrix; 192 x 1536 pairs ~ 20 ms)."""
+    max_second_contacts: int = 1536
+    """Second contacts q sampled from the target (a 5 mm cloud of a 15 cm object has ~1500 points)."""
+    pair_angle_deg: float = 20.0
+    """Largest angle between the closing line and either inward normal for a pair to count as
+    antipodal (tan 20 deg = 0.36: force closure at friction 0.36 on the observed normals)."""
+    min_pair_distance: float = 0.004
+    """Shortest contact distance, metres (thinner than ~a voxel is noise, not an object)."""
+    finger_margin: float = 0.01
+    """Room between each contact and its finger when the hand closes in, metres (the fused
+    surface is within ~3 mm of the true one; 1 cm leaves the finger free of the object)."""
+    min_finger_margin: float = 0.003
+    """Least room per side when the object barely fits the maximum opening, metres."""
+    max_pairs: int = 96
+    """Contact pairs carried into the gripper fit (the candidate count is this x approaches x depths)."""
+    approach_steps: int = 12
+    """Approach directions swept around each closing axis (every 30 deg)."""
+    depth_offsets: tuple[float, ...] = (0.0, 0.01, -0.01, -0.017)
+    """Shifts of the grasp centre along the approach from the contacts' midpoint, metres
+    (+: deeper, contacts nearer the palm; -: shallower, fingertips clear of what lies below;
+    -0.017 puts the contacts 3 mm from the fingertips, for flat objects lying on the table)."""
+    preferred_approach: tuple[float, float, float] = (0.0, 0.0, -1.0)
+    """Preferred approach direction in world (default from above: world -z)."""
+    min_approach_dot: float = -0.5
+    """Approaches with ``z . preferred_approach`` below this are not tried (from below the
+    horizontal into a table; saves the collision tests of hopeless candidates)."""
+    collision_pad: float = 0.002
+    """Growth of the finger boxes and the palm's clearance for cloud collisions, metres
+    (fused points are voxel means, up to ~2.5 mm off the surface)."""
+    grid_cell: float = 0.005
+    """Cell of the distance and unseen-space grids, metres (the fusion voxel, Sec. IV)."""
+    palm_spacing: float = 0.01
+    """Spacing of the palm's sample points, metres (cover radius ~8.5 mm)."""
+    finger_spacing: float = 0.005
+    """Spacing of the fingers' sample points for the unseen-space check, metres."""
+    hidden_tolerance: float = 0.006
+    """A point is hidden in a view when it lies this far behind the observed depth, metres
+    (above 1 mm depth quantisation plus a voxel half-diagonal, so the seen surface itself is free)."""
+    min_target_points: int = 3
+    """Least target points in the closing region (fewer is a glancing touch, not a grasp)."""
+    max_foreign_points: int = 0
+    """Most non-target points (other objects, table, tray) allowed in the closing region."""
+    clearance_saturation: float = 0.02
+    """Clearance beyond the acceptance threshold at which the clearance term saturates, metres."""
+    centring_scale: float = 0.02
+    """Length scale of the centring term, metres (half the width of a typical grasped object)."""
+    w_antipodal: float = 0.4
+    """Weight of the antipodality term."""
+    w_approach: float = 0.25
+    """Weight of the approach term."""
+    w_clearance: float = 0.15
+    """Weight of the clearance term."""
+    w_centring: float = 0.2
+    """Weight of the centring term."""
+    nms_distance: float = 0.01
+    """Centres closer than this (metres) with similar axes are duplicates."""
+    nms_angle_deg: float = 30.0
+    """Axes within this angle are similar (approach; closing axis up to sign)."""
+    max_grasps: int = 100
+    """Most grasps returned."""
+
+    def __post_init__(self) -> None:
+        checks = {
+            "max_first_contacts": self.max_first_contacts >= 1, "max_second_contacts": self.max_second_contacts >= 1,
+            "pair_angle_deg": 0 < self.pair_angle_deg < 90, "min_pair_distance": self.min_pair_distance >= 0,
+            "finger_margin": self.finger_margin >= 0, "min_finger_margin": 0 <= self.min_finger_margin,
+            "max_pairs": self.max_pairs >= 1, "approach_steps": self.approach_steps >= 1,
+            "collision_pad": self.collision_pad >= 0, "grid_cell": self.grid_cell > 0,
+            "palm_spacing": self.palm_spacing > 0, "finger_spacing": self.finger_spacing > 0,
+            "hidden_tolerance": self.hidden_tolerance >= 0, "min_target_points": self.min_target_points >= 1,
+            "max_foreign_points": self.max_foreign_points >= 0, "clearance_saturation": self.clearance_saturation > 0,
+            "centring_scale": self.centring_scale > 0, "max_grasps": self.max_grasps >= 1,
+            "nms_angle_deg": 0 <= self.nms_angle_deg <= 180, "nms_distance": self.nms_distance >= 0,
+        }
+        for name, ok in checks.items():
+            if not ok:
+                raise SceneError(f"AntipodalConfig.{name} is out of range: {getattr(self, name)}")
+        if not self.depth_offsets:
+            raise SceneError("AntipodalConfig.depth_offsets needs at least one offset")
+        lo, hi = self.gripper.closing_z
+        if any(not lo <= -d <= hi for d in self.depth_offsets):
+            raise SceneError(f"AntipodalConfig.depth_offsets must keep the contacts in the closing region "
+                             f"(|offset| within {self.gripper.closing_z}), got {self.depth_offsets}")
+        if np.linalg.norm(self.preferred_approach) < 1e-6:
+            raise SceneError("AntipodalConfig.preferred_approach must be a non-zero vector")
+        if min(self.w_antipodal, self.w_approach, self.w_clearance, self.w_centring) < 0 or \
+                self.w_antipodal + self.w_approach + self.w_clearance + self.w_centring <= 0:
+            raise SceneError("AntipodalConfig weights must be >= 0 with a positive sum")
+
+
+@dataclass(frozen=True)
+class PlanStats:
+    """How many candidates each stage kept (for messages and the benchmark)."""
+
+    target_points: int = 0
+    pairs: int = 0
+    candidates: int = 0
+    after_fingers: int = 0
+    after_closing: int = 0
+    after_palm: int = 0
+    after_unseen: int = 0
+    returned: int = 0
+    seconds: dict = field(default_factory=dict)
+
+    def summary(self) -> str:
+        return (f"{self.target_points} target points, {self.pairs} antipodal pairs, {self.candidates} candidates; "
+                f"kept {self.after_fingers} after finger collisions, {self.after_closing} after the closing-region "
+                f"rule, {self.after_palm} after palm collisions, {self.after_unseen} after unseen space")
+
+
+# ------------------------------------------------------------------------------ grids
+
+
+@dataclass(frozen=True, eq=False)
+class _Grid:
+    origin: np.ndarray  # (3,) world position of cell (0, 0, 0)'s corner
+    cell: float
+    shape: tuple[int, int, int]
+
+    def index(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(..., 3) world points -> (flat cell index (...,) int64, inside (...,) bool)."""
+        ijk = np.floor((p - self.origin) / self.cell).astype(np.int64)
+        s = np.asarray(self.shape)
+        inside = np.all((ijk >= 0) & (ijk < s), axis=-1)
+        ijk = np.clip(ijk, 0, s - 1)
+        return (ijk[..., 0] * s[1] + ijk[..., 1]) * s[2] + ijk[..., 2], inside
+
+    def centres(self) -> np.ndarray:
+        axes = [self.origin[i] + self.cell * (np.arange(self.shape[i]) + 0.5) for i in range(3)]
+        return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+def unseen_occupied(points: np.ndarray, views: tuple[DepthView, ...], tolerance: float) -> np.ndarray:
+    """(P, 3) world points -> (P,) bool: hidden behind the observed surface in every view that sees them.
+
+    A view *sees* a point when it projects inside the image, in front of the camera, onto a
+    valid depth pixel; it says *hidden* when the point is more than ``tolerance`` metres behind
+    that depth. Occupied-unseen = seen by at least one view and hidden in all that see it.
+    """
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    seen = np.zeros(len(p), np.int16)
+    hidden = np.zeros(len(p), np.int16)
+    for v in views:
+        cam = v.camera
+        T = cam.T_camera_world
+        pc = p @ T[:3, :3].T + T[:3, 3]
+        z = pc[:, 2]
+        front = z > 1e-6
+        zs = np.where(front, z, 1.0)
+        u = np.rint(cam.fx * pc[:, 0] / zs + cam.cx).astype(np.int64)
+        w = np.rint(cam.fy * pc[:, 1] / zs + cam.cy).astype(np.int64)
+        ok = front & (u >= 0) & (u < cam.width) & (w >= 0) & (w < cam.height)
+        d = np.full(len(p), np.nan, np.float32)
+        d[ok] = v.depth[w[ok], u[ok]]
+        ok &= np.isfinite(d)
+        seen += ok
+        hidden += ok & (z > d + tolerance)
+    return (seen > 0) & (hidden == seen)
+
+
+def _distance_grid(points: np.ndarray, grid: _Grid) -> np.ndarray:
+    """Flat (cells,) float32 distance in metres from each cell centre to the nearest occupied cell centre."""
+    from scipy.ndimage import distance_transform_edt
+
+    occ = np.zeros(grid.shape, bool)
+    idx, inside = grid.index(points)
+    occ.reshape(-1)[idx[inside]] = True
+    if not occ.any():
+        return np.full(int(np.prod(grid.shape)), np.inf, np.float32)
+    return (distance_transform_edt(~occ) * grid.cell).astype(np.float32).reshape(-1)
+
+
+# ------------------------------------------------------------------------------ the planner
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / np.maximum(n, 1e-12)
+
+
+def _sample(n: int, k: int, rng: np.random.Generator) -> np.ndarray:
+    return np.arange(n) if n <= k else np.sort(rng.choice(n, k, replace=False))
+
+
+def _pairs(tp: np.ndarray, tn: np.ndarray, cfg: AntipodalConfig, rng: np.random.Generator):
+    """Antipodal contact pairs: (p (P,3), q (P,3), quality cos (P,)) best first, one per cell and axis bin."""
+    g = cfg.gripper
+    ip = _sample(len(tp), cfg.max_first_contacts, rng)
+    iq = _sample(len(tp), cfg.max_second_contacts, rng)
+    P, Np = tp[ip].astype(np.float64), tn[ip].astype(np.float64)
+    Q, Nq = tp[iq].astype(np.float64), tn[iq].astype(np.float64)
+    d = Q[None, :, :] - P[:, None, :]
+    dist = np.linalg.norm(d, axis=2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = d / dist[..., None]
+    cos1 = -np.einsum("pqk,pk->pq", u, Np)  # line vs inward normal at p
+    cos2 = np.einsum("pqk,qk->pq", u, Nq)  # line vs inward normal at q (-u . -n_q)
+    cmin = np.minimum(cos1, cos2)
+    ok = (cmin >= np.cos(np.radians(cfg.pair_angle_deg))) & (dist >= max(cfg.min_pair_distance, 1e-6)) & \
+         (dist <= g.max_width - 2 * cfg.min_finger_margin)
+    a, b = np.nonzero(ok)
+    if len(a) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
+    p, q, c = P[a], Q[b], cmin[a, b]
+    axis = u[a, b]
+    # canonical axis sign (the hand is symmetric): first non-negligible component positive
+    sgn = np.where(np.abs(axis[:, 0]) > 1e-3, np.sign(axis[:, 0]),
+                   np.where(np.abs(axis[:, 1]) > 1e-3, np.sign(axis[:, 1]), np.sign(axis[:, 2])))
+    key_c = np.floor((p + q) / 2 / 0.01).astype(np.int64)
+    key_a = np.rint(axis * sgn[:, None] * 3).astype(np.int64)  # ~20 deg bins
+    # best first; ties (flat faces give many equal pairs) broken at random so the kept pairs spread out
+    order = np.lexsort((rng.random(len(c)), -np.round(c, 2)))
+    keys = np.concatenate([key_c, key_a], axis=1)[order]
+    _, first = np.unique(keys, axis=0, return_index=True)
+    keep = order[np.sort(first)][: cfg.max_pairs]
+    return p[keep], q[keep], c[keep]
+
+
+def plan_antipodal(request: GraspRequest, config: AntipodalConfig = AntipodalConfig()) -> tuple[GraspSet, PlanStats]:
+    """Ranked antipodal grasps on the request's target (module docstring). Returns (grasps, stats)."""
+    cfg, g = config, config.gripper
+    t0 = time.perf_counter()
+    secs: dict[str, float] = {}
+    rng = np.random.default_rng(cfg.seed)
+    inst = request.instance
+    tp, tn = request.target_points, request.target_normals
+    stats = PlanStats(target_points=len(tp))
+
+    def empty(msg: str, st: PlanStats) -> tuple[GraspSet, PlanStats]:
+        return GraspSet.empty(inst, msg), st
+
+    if len(tp) < cfg.min_target_points:
+        return empty(f"no grasp: the target has {len(tp)} points (at least {cfg.min_target_points} needed)", stats)
+    P, Q, qual = _pairs(tp, tn, cfg, rng)
+    secs["pairs"] = time.perf_counter() - t0
+    stats = PlanStats(target_points=len(tp), pairs=len(P))
+    if len(P) == 0:
+        return empty(f"no grasp: no antipodal contact pair on the target's {len(tp)} points fits the hand "
+                     f"(opening <= {g.max_width} m, normals within {cfg.pair_angle_deg} deg)", stats)
+
+    # -- gripper frames: x closing, z approach swept around x, y = z x x
+    x = _unit(Q - P)
+    mid = (P + Q) / 2
+    dist = np.linalg.norm(Q - P, axis=1)
+    width = np.minimum(dist + 2 * cfg.finger_margin, g.max_width)
+    pref = _unit(np.asarray(cfg.preferred_approach, float))
+    z0 = pref[None] - (x @ pref)[:, None] * x
+    bad = np.linalg.norm(z0, axis=1) < 1e-3  # closing axis along the preferred approach
+    if bad.any():
+        alt = np.cross(x[bad], np.array([1.0, 0.0, 0.0]))
+        alt[np.linalg.norm(alt, axis=1) < 1e-3] = np.cross(x[bad], np.array([0.0, 1.0, 0.0]))[
+            np.linalg.norm(alt, axis=1) < 1e-3]
+        z0[bad] = alt
+    z0 = _unit(z0)
+    w0 = np.cross(x, z0)
+    K, D = cfg.approach_steps, len(cfg.depth_offsets)
+    th = 2 * np.pi * np.arange(K) / K
+    ct, st = np.cos(th), np.sin(th)
+    Z = ct[None, :, None] * z0[:, None] + st[None, :, None] * w0[:, None]  # (P, K, 3)
+    Y = -ct[None, :, None] * w0[:, None] + st[None, :, None] * z0[:, None]  # y = z x x
+    delta = np.asarray(cfg.depth_offsets, float)
+    alive = np.broadcast_to(((Z @ pref) >= cfg.min_approach_dot)[:, :, None], (len(P), K, D)).copy()
+    stats = PlanStats(target_points=len(tp), pairs=len(P), candidates=int(alive.sum()))
+
+    # -- exact local tests: cloud points near each pair centre in every candidate frame
+    from scipy.spatial import cKDTree
+
+    pts = request.points.astype(np.float64)
+    is_t = request.target
+    boxes = g.boxes(g.max_width)
+    fz0, fz1 = g.finger_z
+    cz0, cz1 = g.closing_z
+    r_loc = np.sqrt((width / 2 + g.finger_thickness + cfg.collision_pad) ** 2 + (g.finger_half_y + cfg.collision_pad) ** 2
+                    + (max(abs(fz0), abs(fz1)) + np.abs(delta).max() + cfg.collision_pad) ** 2)
+    pad = cfg.collision_pad
+    # the tree only needs the cloud around the target (building it on the whole scene costs more)
+    box_lo, box_hi = tp.min(0) - r_loc.max(), tp.max(0) + r_loc.max()
+    sub = np.flatnonzero(np.all((pts >= box_lo) & (pts <= box_hi), axis=1))
+    tree = cKDTree(pts[sub])
+    nb = tree.query_ball_point(mid, r_loc, workers=1)
+    lens = np.fromiter((len(n) for n in nb), np.int64, len(nb))
+    flat = sub[np.fromiter((i for n in nb for i in n), np.int64, int(lens.sum()))]
+    pair_of = np.repeat(np.arange(len(P)), lens)
+    dv = pts[flat] - mid[pair_of]
+    a = np.einsum("nk,nk->n", dv, x[pair_of])
+    b = np.einsum("nk,nk->n", dv, z0[pair_of])
+    c = np.einsum("nk,nk->n", dv, w0[pair_of])
+    # only points in the slab of the fingers along x and the cylinder they sweep around x matter
+    r_yz = np.hypot(g.finger_half_y + pad, max(abs(fz0), abs(fz1)) + np.abs(delta).max() + pad)
+    near = (np.abs(a) <= (width / 2)[pair_of] + g.finger_thickness + pad) & (b * b + c * c <= r_yz * r_yz)
+    near[np.concatenate([[0], np.cumsum(lens)[:-1]])] = True  # keep one point per pair so segments stay non-empty
+    flat, pair_of, a, b, c = flat[near], pair_of[near], a[near], b[near], c[near]
+    lens = np.bincount(pair_of, minlength=len(P))
+    ly = -c[:, None] * ct[None] + b[:, None] * st[None]  # (n, K)
+    lz = b[:, None] * ct[None] + c[:, None] * st[None]
+    hw = (width / 2)[pair_of]
+    absa = np.abs(a)
+    starts = np.concatenate([[0], np.cumsum(lens)[:-1]])
+    in_y_f = np.abs(ly) <= g.finger_half_y + pad
+    in_y_c = np.abs(ly) <= g.finger_half_y
+    in_x_f = (absa >= hw - pad) & (absa <= hw + g.finger_thickness + pad)
+    in_x_c = absa < hw
+    finger_hit = np.zeros((len(P), K, D), bool)
+    n_target = np.zeros((len(P), K, D), np.int64)
+    n_foreign = np.zeros((len(P), K, D), np.int64)
+    for j, dj in enumerate(delta):
+        lzj = lz - dj
+        f = in_x_f[:, None] & in_y_f & (lzj >= fz0 - pad) & (lzj <= fz1 + pad)
+        finger_hit[:, :, j] = np.add.reduceat(f, starts, axis=0) > 0
+        cl = in_x_c[:, None] & in_y_c & (lzj >= cz0) & (lzj <= cz1)
+        n_target[:, :, j] = np.add.reduceat(cl & is_t[flat][:, None], starts, axis=0)
+        n_foreign[:, :, j] = np.add.reduceat(cl & ~is_t[flat][:, None], starts, axis=0)
+    alive &= ~finger_hit
+    stats = PlanStats(**{**stats.__dict__, "after_fingers": int(alive.sum())})
+    alive &= (n_target >= cfg.min_target_points) & (n_foreign <= cfg.max_foreign_points)
+    stats = PlanStats(**{**stats.__dict__, "after_closing": int(alive.sum())})
+    secs["local"] = time.perf_counter() - t0 - sum(secs.values())
+    if not alive.any():
+        return empty(f"no grasp: every candidate's fingers hit the cloud or its closing region does not hold "
+                     f"only the target ({stats.summary()})", stats)
+
+    # -- partial score (everything but clearance) orders the expensive palm and unseen tests
+    ip, ik, ij = np.nonzero(alive)
+    R = np.stack([x[ip], Y[ip, ik], Z[ip, ik]], axis=2)  # (C, 3, 3) columns x, y, z
+    centre = mid[ip] + delta[ij][:, None] * Z[ip, ik]
+    ca = np.cos(np.radians(cfg.pair_angle_deg))
+    s_a = np.clip((qual[ip] - ca) / (1 - ca), 0, 1)
+    s_p = (1 + R[:, :, 2] @ pref) / 2
+    cen = tp.mean(0)
+    dv = cen[None] - centre
+    d_axis = np.linalg.norm(dv - (dv * R[:, :, 0]).sum(1)[:, None] * R[:, :, 0], axis=1)
+    s_m = np.exp(-d_axis / cfg.centring_scale)
+    wsum = cfg.w_antipodal + cfg.w_approach + cfg.w_clearance + cfg.w_centring
+    partial = (cfg.w_antipodal * s_a + cfg.w_approach * s_p + cfg.w_centring * s_m) / wsum
+    order = np.argsort(-partial, kind="stable")
+
+    lo = tp.min(0) - g.reach - np.abs(delta).max() - 2 * cfg.grid_cell
+    hi = tp.max(0) + g.reach + np.abs(delta).max() + 2 * cfg.grid_cell
+    grid = _Grid(lo, cfg.grid_cell, tuple(int(v) for v in np.ceil((hi - lo) / cfg.grid_cell)))
+    in_grid = pts[np.all((pts >= lo) & (pts <= hi), axis=1)]
+    dgrid = _distance_grid(in_grid, grid)
+    ptree, ptree_pts = cKDTree(in_grid), in_grid
+    secs["grid"] = time.perf_counter() - t0 - sum(secs.values())
+    palm_s, palm_r = box_grid(boxes["palm"], cfg.palm_spacing)
+    palm_thr = palm_r + cfg.grid_cell * np.sqrt(3) + pad
+    palm_depth = np.min(np.asarray(boxes["palm"].half) - np.abs(palm_s - np.asarray(boxes["palm"].centre)), axis=1)
+    fl_s, _ = box_grid(boxes["finger_left"], cfg.finger_spacing)
+    fr_s = fl_s * np.array([-1.0, 1.0, 1.0])
+    unseen_cache: dict[int, bool] = {}
+    ok = np.zeros(len(ip), bool)
+    clear = np.zeros(len(ip))
+    n_palm = 0
+    # batches in partial-score order until enough survive (the clearance term only re-ranks survivors)
+    for start in range(0, len(order), _BATCH):
+        bi = order[start: start + _BATCH]
+        ok_b, clear_b, palm_ok = _palm_and_unseen(R[bi], centre[bi], width[ip[bi]], grid, dgrid, palm_s, palm_thr,
+                                                  palm_depth, ptree, ptree_pts, fl_s, fr_s, request.views, cfg,
+                                                  unseen_cache)
+        ok[bi], clear[bi] = ok_b, clear_b
+        n_palm += int(palm_ok.sum())
+        if ok.sum() >= 2 * cfg.max_grasps:
+            break
+    stats = PlanStats(**{**stats.__dict__, "after_palm": n_palm, "after_unseen": int(ok.sum())})
+    secs["palm_unseen"] = time.perf_counter() - t0 - sum(secs.values())
+    views = request.views
+    if not ok.any():
+        why = "palm collisions" if n_palm == 0 else "unseen space (hidden behind surfaces in every view)"
+        return empty(f"no grasp: every remaining candidate is blocked by {why} ({stats.summary()})", stats)
+
+    # -- scores
+    sel = np.flatnonzero(ok)
+    ip, R, centre = ip[sel], R[sel], centre[sel]
+    s_c = np.clip(clear[sel] / cfg.clearance_saturation, 0, 1)
+    score = partial[sel] + cfg.w_clearance * s_c / wsum
+
+    keep = _nms(score, centre, R, cfg)[: cfg.max_grasps]
+    T = np.tile(np.eye(4), (len(keep), 1, 1))
+    T[:, :3, :3] = R[keep]
+    T[:, :3, 3] = centre[keep]
+    contacts = np.stack([P[ip[keep]], Q[ip[keep]]], axis=1).astype(np.float32)
+    # contacts listed x < 0 finger first: P is at -dist/2 along x by construction
+    secs["score"] = time.perf_counter() - t0 - sum(secs.values())
+    secs["total"] = time.perf_counter() - t0
+    stats = PlanStats(**{**stats.__dict__, "returned": len(keep), "seconds": secs})
+    msg = "" if views else "cloud-only collision checks: no depth views, so unseen space was not checked"
+    gs = GraspSet(T, width[ip[keep]].astype(np.float32), score[keep].astype(np.float32),
+                  np.full(len(keep), inst, np.int32), contacts, msg)
+    return gs, stats
+
+
+_BATCH = 384  # candidates per palm/unseen batch (ours: ~2 batches give 2 x max_grasps survivors)
+
+
+def _palm_and_unseen(R, centre, width, grid, dgrid, palm_s, palm_thr, palm_depth, tree, tree_pts, fl_s, fr_s, views,
+                     cfg, cache):
+    """(ok (C,), clearance (C,) metres, palm ok (C,)) of candidates with frames R (C,3,3) at ``centre``."""
+    g = cfg.gripper
+    palm_w = np.einsum("cij,sj->csi", R, palm_s) + centre[:, None]
+    pidx, pin = grid.index(palm_w)
+    pd = np.where(pin, dgrid[pidx], np.inf)
+    palm_min = pd.min(axis=1)
+    palm_ok = palm_min >= palm_thr  # provably free (cover radius + grid error + pad)
+    # provably hit: a point within D + cell*sqrt(3) of a sample lying deeper than that inside the palm
+    sure_hit = np.any(pd + grid.cell * np.sqrt(3) < palm_depth[None] + cfg.collision_pad, axis=1)
+    unsure = np.flatnonzero(~palm_ok & ~sure_hit)
+    if len(unsure):  # exact: the cloud points near the palm, in the candidate's frame
+        box = g.boxes(g.max_width)["palm"]
+        pc = np.asarray(box.centre)
+        c_w = R[unsure] @ pc + centre[unsure]
+        nb = tree.query_ball_point(c_w, float(np.linalg.norm(box.half)) + cfg.collision_pad)
+        lens = np.fromiter((len(n) for n in nb), np.int64, len(nb))
+        flat = np.fromiter((i for n in nb for i in n), np.int64, int(lens.sum()))
+        owner = np.repeat(np.arange(len(unsure)), lens)
+        loc = np.einsum("nji,nj->ni", R[unsure][owner], tree_pts[flat] - centre[unsure][owner])
+        inside = box.contains(loc, cfg.collision_pad)
+        hit = np.bincount(owner[inside], minlength=len(unsure)) > 0
+        palm_ok[unsure[~hit]] = True
+    shift = (width - g.max_width) / 2  # move the fully opened fingers in to this width
+    fing = np.concatenate([np.broadcast_to(fl_s, (len(R),) + fl_s.shape),
+                           np.broadcast_to(fr_s, (len(R),) + fr_s.shape)], axis=1).copy()
+    nl = len(fl_s)
+    fing[:, :nl, 0] -= shift[:, None]
+    fing[:, nl:, 0] += shift[:, None]
+    fing_w = np.einsum("cij,csj->csi", R, fing) + centre[:, None]
+    fidx, fin = grid.index(fing_w)
+    finger_min = np.where(fin, dgrid[fidx], np.inf).min(axis=1)
+    ok = palm_ok.copy()
+    if views and ok.any():
+        cells = np.concatenate([pidx[ok][pin[ok]], fidx[ok][fin[ok]]])
+        cand = np.concatenate([np.repeat(np.flatnonzero(ok), pin[ok].sum(1)),
+                               np.repeat(np.flatnonzero(ok), fin[ok].sum(1))])
+        ucells, inv = np.unique(cells, return_inverse=True)
+        occ = np.zeros(len(ucells), bool)
+        todo = np.fromiter((c not in cache for c in ucells.tolist()), bool, len(ucells))
+        if todo.any():
+            ijk = np.stack(np.unravel_index(ucells[todo], grid.shape), axis=1)
+            res = unseen_occupied(grid.origin + (ijk + 0.5) * grid.cell, views, cfg.hidden_tolerance)
+            cache.update(zip(ucells[todo].tolist(), res.tolist()))
+        occ[:] = [cache[c] for c in ucells.tolist()]
+        hit = np.zeros(len(R), bool)
+        np.logical_or.at(hit, cand, occ[inv])
+        ok &= ~hit
+    # clearance beyond each part's acceptance threshold; the fingers sit near the target by design,
+    # so their distance counts from the grid's own error only
+    clear = np.minimum(palm_min - (palm_thr - cfg.collision_pad), finger_min - cfg.grid_cell * np.sqrt(3))
+    return ok, clear, palm_ok
+
+
+def _nms(score: np.ndarray, centre: np.ndarray, R: np.ndarray, cfg: AntipodalConfig) -> np.ndarray:
+    """Indices of kept candidates, best first (greedy; symmetric hand: closing axis up to sign)."""
+    order = np.argsort(-score, kind="stable")
+    cos_t = np.cos(np.radians(cfg.nms_angle_deg))
+    kept: list[int] = []
+    suppressed = np.zeros(len(score), bool)
+    for i in order:
+        if suppressed[i]:
+            continue
+        kept.append(int(i))
+        if len(kept) >= cfg.max_grasps:
+            break
+        close = np.linalg.norm(centre - centre[i], axis=1) <= cfg.nms_distance
+        same_z = R[:, :, 2] @ R[i, :, 2] >= cos_t
+        same_x = np.abs(R[:, :, 0] @ R[i, :, 0]) >= cos_t
+        suppressed |= close & same_z & same_x
+    return np.asarray(kept, np.int64)
+
+
+class AntipodalPlanner:
+    """The default ``grasp_planner``: ``plan_antipodal`` with a fixed config."""
+
+    name = "antipodal"
+
+    def __init__(self, config: AntipodalConfig | None = None) -> None:
+        self.config = config or AntipodalConfig()
+        self.last_stats: PlanStats | None = None
+
+    def plan(self, request: GraspRequest) -> GraspSet:
+        gs, self.last_stats = plan_antipodal(request, self.config)
+        return gs
