@@ -20,6 +20,7 @@ _CORE_COMMANDS: dict[str, str] = {
     "segment": "clutt3r_core.commands.segment:segment_command",
     "bench": "clutt3r_core.commands.bench:bench_command",
     "doctor": "clutt3r_core.commands.doctor:doctor_command",
+    "grasp": "clutt3r_core.commands.grasp:grasp_command",
 }
 
 

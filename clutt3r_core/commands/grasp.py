@@ -1,0 +1,124 @@
+"""``clutt3r grasp RUN (QUERY | --instance K) [--json] [--top N] [--base-frame FILE]``: grasps for one instance.
+
+Writes ``RUN/grasps.json`` (the object ``--json`` prints) and ``RUN/grasps.npz`` (the viewer's
+Grasps tab). The gripper convention is in docs/conventions.md ("Gripper").
+"""
+
+from __future__ import annotations
+
+import json as _json
+import sys
+import time
+from pathlib import Path
+
+from tyro.conf import Positional
+
+from clutt3r_core.grasping.antipodal import AntipodalConfig
+
+__all__ = ["grasp_command"]
+
+
+def _target_from_query(run: Path, text: str, scene: Path | None) -> tuple[int, str]:
+    """(instance id, note) for a text query through the language backend (clutt3r_core.query)."""
+    from clutt3r_core.errors import Clutt3rError, MissingDependencyError
+
+    hint = "pick the instance by id instead: clutt3r grasp RUN --instance K (ids in the viewer or instances.npz)"
+    try:
+        from clutt3r_core.query import RunQuery
+    except ImportError as e:
+        raise SystemExit(f"clutt3r grasp: text queries need the language backend ({e}); {hint}") from None
+    try:
+        rq = RunQuery.open(run, scene=scene, progress=True)
+        res = rq.query(text)
+    except MissingDependencyError as e:
+        raise SystemExit(f"clutt3r grasp: text queries need the language backend: {e}; {hint}") from None
+    except Clutt3rError as e:
+        raise SystemExit(f"clutt3r grasp: the query could not be answered: {e}; {hint}") from None
+    if res.target is None:
+        raise SystemExit(f"clutt3r grasp: the run has no instance for '{text}' to name")
+    note = "" if res.confident else f"the query '{text}' matches instance {res.target} only weakly"
+    return int(res.target), note
+
+
+def grasp_command(
+    run: Positional[Path],
+    query: Positional[str] = "",
+    instance: int | None = None,
+    json: bool = False,
+    top: int = 10,
+    base_frame: Path | None = None,
+    scene: Path | None = None,
+    planner: str = "",
+    config: AntipodalConfig = AntipodalConfig(),
+) -> None:
+    """Plan parallel-jaw grasps for one instance of a run (gripper convention: docs/conventions.md).
+
+    Args:
+        run: run folder written by `clutt3r segment`.
+        query: text naming the target ("the red mug"); needs the language backend. Or use --instance.
+        instance: target instance id (0-based, as in instances.npz and the viewer).
+        json: print one JSON object on the last line: {"target", "query", "grasps": [...]} best first.
+        top: number of grasps to print and write.
+        base-frame: file with T_base_world (4x4: .json, .npy or text); grasps also get T_base_gripper.
+        scene: the scene folder, when the run does not record it (for the unseen-space check).
+        planner: grasp planner backend (default: the registry's default, "antipodal").
+        config: settings of the antipodal planner.
+    """
+    from rich.console import Console
+
+    from clutt3r_core.errors import Clutt3rError
+    from clutt3r_core.grasping import load_base_frame
+    from clutt3r_core.grasping.request import request_from_segmentation, run_views
+    from clutt3r_core.registry import create_backend, default_backend
+    from clutt3r_core.runs import load_run
+
+    console = Console(stderr=True, soft_wrap=True)
+    if (instance is None) == (not query):
+        raise SystemExit("clutt3r grasp: give either a QUERY or --instance K (exactly one)")
+    if top < 1:
+        raise SystemExit(f"clutt3r grasp: --top must be >= 1, got {top}")
+    try:
+        T_base_world = load_base_frame(base_frame) if base_frame is not None else None
+        seg = load_run(run)
+        notes: list[str] = []
+        if query:
+            instance, note = _target_from_query(run, query, scene)
+            if note:
+                notes.append(note)
+        if not 0 <= instance < seg.num_instances:
+            raise SystemExit(f"clutt3r grasp: {run}: instance {instance} does not exist "
+                             f"(the run has instances 0..{seg.num_instances - 1})")
+        views, warn = run_views(run, scene)
+        if warn:
+            notes.append(warn)
+        name = planner or default_backend("grasp_planner")
+        kwargs = {"config": config} if name == "antipodal" else {}
+        gp = create_backend("grasp_planner", name, **kwargs)
+        req = request_from_segmentation(seg, instance, views)
+        t0 = time.perf_counter()
+        gs = gp.plan(req)
+        dt = time.perf_counter() - t0
+    except Clutt3rError as e:
+        raise SystemExit(f"clutt3r grasp: {e}") from None
+    gs = gs.top(top)
+    if gs.message:
+        notes.append(gs.message)
+    run = Path(run)
+    gs.save_json(run / "grasps.json", instance, query or None, T_base_world)
+    gs.save_npz(run / "grasps.npz")
+    for n in notes:
+        console.print(f"[yellow]note:[/] {n}")
+    if len(gs) == 0:
+        console.print(f"[bold red]no grasp found[/] for instance {instance} ({int(req.target.sum())} points) "
+                      f"in {dt:.2f} s; wrote an empty list to {run / 'grasps.json'}")
+    else:
+        console.print(f"[bold]{len(gs)} grasps[/] for instance {instance} ({int(req.target.sum())} points) "
+                      f"by '{gp.name}' in {dt:.2f} s -> {run / 'grasps.json'}, {run / 'grasps.npz'}")
+        for k in range(len(gs)):
+            p = gs.poses[k]
+            console.print(f"  #{k}: score {gs.scores[k]:.3f}  width {gs.widths[k] * 1000:.1f} mm  "
+                          f"centre ({p[0, 3]:+.3f}, {p[1, 3]:+.3f}, {p[2, 3]:+.3f}) m  "
+                          f"approach ({p[0, 2]:+.2f}, {p[1, 2]:+.2f}, {p[2, 2]:+.2f})")
+    if json:
+        sys.stdout.write(_json.dumps(gs.to_json(instance, query or None, T_base_world)) + "\n")
+        sys.stdout.flush()
