@@ -36,13 +36,16 @@ def start(
     embedder=None,
     lod: str = "200k",
     verbose: bool = False,
+    images: bool = True,
 ):
     """Start the viewer and return its ``ViewerApp`` at once (the server runs in threads).
 
     ``run_or_scene``: a run folder (``clutt3r segment`` output, read without recomputing),
     a scene folder or ``Scene`` (segmented in the background while the page shows progress),
-    a ``Segmentation`` or a ``ViewerData``. ``scene`` adds images to a run; ``embedder``
-    overrides the text embedder used by the Query tab.
+    a ``Segmentation`` or a ``ViewerData``. ``scene`` adds images to a run (overriding the
+    scene folder the run recorded); ``images=False`` opens a run without its scene (e.g. one
+    whose recorded scene folder moved: otherwise a ``SceneFileError`` naming run.json);
+    ``embedder`` overrides the text embedder used by the Query tab.
     """
     from clutt3r_core.errors import SceneFileError
     from clutt3r_core.pipeline import Segmentation
@@ -85,11 +88,13 @@ def start(
             from clutt3r_viewer.edit import open_annotations
 
             try:
-                data = finish(load_viewer_data(p, scene))
+                data = finish(load_viewer_data(p, scene, images=images))
                 ann = open_annotations(p, data.seg)  # e.g. a log of another run: a clear error
             except BaseException:
                 app.stop()
                 raise
+            if not images and not data.views:
+                app.no_images_text = "_images not shown (`--no-images`)_"
             app.set_data(data, annotations=ann)
         elif is_scene_dir(p):
             from clutt3r_core.io import load_scene
@@ -102,9 +107,10 @@ def start(
     return app
 
 
-def serve(run_or_scene, port: int = 8080, host: str = "127.0.0.1", scene=None, embedder=None, lod: str = "200k"):
+def serve(run_or_scene, port: int = 8080, host: str = "127.0.0.1", scene=None, embedder=None, lod: str = "200k",
+          images: bool = True):
     """Start the viewer (see ``start``), print its URL and serve until Ctrl-C."""
-    app = start(run_or_scene, port=port, host=host, scene=scene, embedder=embedder, lod=lod)
+    app = start(run_or_scene, port=port, host=host, scene=scene, embedder=embedder, lod=lod, images=images)
     print(f"Clutt3R viewer: {app.url}  (Ctrl-C to stop)", flush=True)
     try:
         while True:

@@ -16,6 +16,7 @@ def view_command(
     host: str = "127.0.0.1",
     scene: Path | None = None,
     lod: Literal["50k", "200k", "1M", "all"] = "200k",
+    no_images: bool = False,
 ) -> None:
     """Inspect a run (or segment a scene and inspect it) in the browser.
 
@@ -24,12 +25,21 @@ def view_command(
             (segmented on the fly, progress shown in the page).
         port: port of the web server.
         host: address to bind; 127.0.0.1 keeps it local.
-        scene: the run's scene folder, for images and cameras (default: viewer.json or scene/ in the run).
+        scene: the run's scene folder, for images and cameras (default: the one the run recorded in
+            run.json, else viewer.json or scene/ in the run).
         lod: points sent to each browser tab at first (level of detail; changeable in the page).
+        no_images: open the run without its scene (e.g. when its recorded scene folder moved).
     """
+    import sys
+
+    from clutt3r_core.errors import Clutt3rError
     from clutt3r_viewer import serve
 
-    serve(path, port=port, host=host, scene=scene, lod=lod)
+    try:
+        serve(path, port=port, host=host, scene=scene, lod=lod, images=not no_images)
+    except Clutt3rError as e:  # one clear line, not a traceback (e.g. the run's scene folder moved)
+        print(f"clutt3r view: {e}", file=sys.stderr)
+        raise SystemExit(2) from None
 
 
 def export_rerun_command(run: Positional[Path], out: Positional[Path], scene: Path | None = None, max_points: int = 50_000) -> None:
@@ -38,13 +48,21 @@ def export_rerun_command(run: Positional[Path], out: Positional[Path], scene: Pa
     Args:
         run: run folder.
         out: the .rrd file to write.
-        scene: the run's scene folder (default: viewer.json or scene/ in the run); without it no images.
+        scene: the run's scene folder (default: the one recorded in run.json, else viewer.json or scene/ in
+            the run); without it no images.
         max_points: points of the per-event replay cloud.
     """
+    import sys
+
+    from clutt3r_core.errors import Clutt3rError
     from clutt3r_viewer.loading import load_viewer_data
     from clutt3r_viewer.rerun_export import export_rerun
 
-    data = load_viewer_data(run, scene)
+    try:
+        data = load_viewer_data(run, scene)
+    except Clutt3rError as e:
+        print(f"clutt3r export-rerun: {e}", file=sys.stderr)
+        raise SystemExit(2) from None
     p = export_rerun(data, out, max_points=max_points)
     print(f"{p}: {p.stat().st_size / 1e6:.1f} MB ({len(data.views)} views, {data.num_events} grouping events, "
           f"{data.seg.num_instances} instances)")
@@ -73,9 +91,9 @@ def demo_command(
 def make_demo_run(out: Path, seed: int = 0, preset: str = "intermediate", views: int = 8,
                   width: int = 640, height: int = 480, focal_px: float | None = None) -> Path:
     """Generate + segment + save (the demo without the server). Returns the run folder."""
-    from clutt3r_core.pipeline import save_run, segment
+    from clutt3r_core.pipeline import segment
+    from clutt3r_core.runs import save_run
     from clutt3r_core.synth import SynthConfig, generate, write_synth_scene
-    from clutt3r_viewer.loading import write_viewer_link
 
     out = Path(out)
     kw = {} if focal_px is None else {"focal_px": focal_px}
@@ -85,7 +103,6 @@ def make_demo_run(out: Path, seed: int = 0, preset: str = "intermediate", views:
     scene_dir = write_synth_scene(res.scene, out / "scene", info=res.info, contact_sheet=False)
     print("segmenting ...", flush=True)
     seg = segment(res.scene)
-    save_run(seg, out)
-    write_viewer_link(out, scene_dir)
+    save_run(seg, out, scene_root=scene_dir)  # run.json records the scene (relative: scene/)
     print(f"{out}: {seg.num_instances} instances ({len(res.info.object_keys)} objects in the scene)", flush=True)
     return out

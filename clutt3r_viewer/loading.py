@@ -1,9 +1,15 @@
 """Turning what the user gives (a run folder, a scene folder, objects) into ``ViewerData``.
 
 A run folder is read with ``load_run`` (nothing is recomputed). Its scene (for images
-and cameras) is found, in order: the ``scene`` argument, ``viewer.json`` in the run
-folder (``{"scene": "<path, relative to the run folder or absolute>"}``), a ``scene/``
-subfolder. Without one, the viewer still shows the cloud, trees, graph and replay.
+and cameras) is found, in order: the ``scene`` argument (``--scene``, an override), the
+scene folder the run recorded in ``run.json`` (``clutt3r_core.runs.run_scene_folder``),
+the legacy link ``viewer.json`` in the run folder (``{"scene": "<path, relative to the
+run folder or absolute>"}``, written by older versions), a ``scene/`` subfolder. Without
+one, the viewer still shows the cloud, trees, graph and replay.
+
+A recorded scene folder that no longer exists (moved or deleted) is an error naming
+``run.json``, not a silent fallback: the user learns why the images are missing and
+chooses ``--scene NEW_FOLDER`` or ``--no-images`` (``images=False``: view without them).
 
 Hooks for data the core does not produce yet:
 - ``register_update_loader(fn)``: ``fn(run_dir, scene) -> tuple[UpdateFrame, ...]`` adds
@@ -18,6 +24,7 @@ from pathlib import Path
 from typing import Callable
 
 from clutt3r_core.errors import Clutt3rError, SceneFileError
+from clutt3r_core.runs import is_run_folder, read_run_info, run_scene_folder
 from clutt3r_core.scene import Scene
 from clutt3r_viewer.data import GraspSet, UpdateFrame, ViewerData, build_viewer_data
 
@@ -50,15 +57,37 @@ def load_updates(run_dir: Path | None, scene: Scene | None) -> tuple[UpdateFrame
 
 
 def is_run_dir(p: Path) -> bool:
-    return (p / "instances.npz").is_file() and (p / "trace").is_dir()
+    """A run folder (the core's one rule, ``clutt3r_core.runs.is_run_folder``)."""
+    return is_run_folder(p)
 
 
 def is_scene_dir(p: Path) -> bool:
     return (p / "transforms.json").is_file() or (p / "scene_camera.json").is_file() or (p / "data" / "transforms.json").is_file()
 
 
+MOVED_HINT = "pass --scene NEW_FOLDER, or --no-images to view the run without its images"
+
+
 def find_scene(run_dir: Path) -> Path | None:
-    """The scene folder linked to a run folder, or None (module docstring)."""
+    """The scene folder of a run folder, or None (module docstring).
+
+    Raises ``SceneFileError`` naming run.json (recorded folder moved) or viewer.json (bad link).
+    """
+    run_dir = Path(run_dir)
+    try:
+        recorded = run_scene_folder(run_dir)
+    except SceneFileError as e:
+        info = read_run_info(run_dir)  # an unreadable run.json raises its own error here
+        if info.scene is None:
+            raise
+        where = info.scene if info.scene.is_absolute() else f"{info.scene} (relative to the run folder)"
+        raise SceneFileError(e.path, f"the run's scene folder {where} does not exist (moved or deleted?); "
+                                     f"{MOVED_HINT}") from None
+    if recorded is not None:
+        if not is_scene_dir(recorded):
+            raise SceneFileError(run_dir / "run.json",
+                                 f"recorded scene folder {recorded} has no transforms.json / scene_camera.json; {MOVED_HINT}")
+        return recorded
     link = run_dir / "viewer.json"
     if link.is_file():
         try:
@@ -75,7 +104,8 @@ def find_scene(run_dir: Path) -> Path | None:
 
 
 def write_viewer_link(run_dir: Path, scene_dir: Path) -> None:
-    """Record the scene of a run so that ``clutt3r view RUN_DIR`` shows its images."""
+    """Legacy: link a run to its scene in ``viewer.json``. New runs record their scene in run.json
+    (``save_run(seg, out, scene_root=...)``); this stays for runs written without one."""
     from clutt3r_core.io.images import atomic_write_bytes
 
     try:
@@ -86,14 +116,18 @@ def write_viewer_link(run_dir: Path, scene_dir: Path) -> None:
     atomic_write_bytes(Path(run_dir) / "viewer.json", json.dumps({"scene": target}).encode())
 
 
-def load_viewer_data(run_dir: Path, scene: Scene | Path | None = None) -> ViewerData:
-    """Read a saved run (and its scene, if found) without recomputing."""
+def load_viewer_data(run_dir: Path, scene: Scene | Path | None = None, images: bool = True) -> ViewerData:
+    """Read a saved run (and its scene, if found) without recomputing.
+
+    ``scene`` overrides the recorded one; ``images=False`` skips the scene (no images, no
+    error for a moved one).
+    """
     from clutt3r_core.io import load_scene
-    from clutt3r_core.pipeline import load_run
+    from clutt3r_core.runs import load_run
 
     run_dir = Path(run_dir)
     seg = load_run(run_dir)
-    if scene is None:
+    if scene is None and images:
         scene = find_scene(run_dir)
     if isinstance(scene, (str, Path)):
         scene = load_scene(scene)

@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from clutt3r_viewer.app import _tree_order, default_camera, gripper_segments, node_kind, overlay_image, tree_button_label
+from clutt3r_viewer.camera import default_camera
+from clutt3r_viewer.panels.grasps import gripper_segments
+from clutt3r_viewer.panels.tree import node_kind, tree_button_label
+from clutt3r_viewer.panels.tree import tree_order as _tree_order
+from clutt3r_viewer.panels.views import overlay_image
 
 
 def test_tree_order_lists_every_node_once_parents_first(tiny_data):
@@ -50,7 +54,8 @@ def test_overlay_highlights_the_selected_mask(tiny_data):
 
 
 def test_default_camera_looks_at_the_objects_from_above(tiny_data):
-    look, eye = default_camera(tiny_data)
+    cam = default_camera(tiny_data)
+    look, eye = cam.look_at, cam.position
     assert eye[2] > look[2]
     assert 0.1 < np.linalg.norm(eye - look) < 10
 

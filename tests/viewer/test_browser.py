@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from clutt3r_viewer.panels import TreePanel
 from tests.viewer.conftest import free_port
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
@@ -101,7 +102,7 @@ def test_page_renders_the_scene_and_the_tree_and_replay_drive_the_server(browser
     _tab(page, "Tree")
     vi_nodes = d.view_nodes(1)
     leaf = int(next(i for i in vi_nodes if d.trace.nodes.is_leaf[i] and not d.trace.nodes.background[i]))
-    label = sess.tree_buttons[leaf]
+    label = sess.panel(TreePanel).buttons[leaf]
     btn = page.get_by_role("button", name=label.label)
     assert btn.count() >= 1, "tree of the selected view is not shown"
     assert page.get_by_text(f"Tree of frame {int(d.trace.frames[1])}").count() == 1

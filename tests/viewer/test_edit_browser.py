@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from clutt3r_core.annotations import LOG_NAME
+from clutt3r_viewer.panels import TreePanel
 from tests.viewer.conftest import free_port
 from tests.viewer.test_browser import _canvas_shot, _open, _tab, _wait, browser  # noqa: F401 (fixture)
 
@@ -79,7 +80,7 @@ def test_edit_tab_merge_is_logged_at_once_and_undo_reverts_it(browser, edit_app,
     d = app.data
     leaf = int(next(i for i in d.view_nodes(0) if d.trace.nodes.is_leaf[i] and d.node_instance[i] >= 0))
     _tab(page, "Tree")
-    page.get_by_role("button", name=sess.tree_buttons[leaf].label).first.click()
+    page.get_by_role("button", name=sess.panel(TreePanel).buttons[leaf].label).first.click()
     _wait(lambda: sess.state.node == leaf and sess.state.edit_instance == int(d.node_instance[leaf]),
           what="node selection picks its instance")
     _tab(page, "Edit")

@@ -36,4 +36,7 @@ def test_demo_run_is_written_with_its_scene_linked(tmp_path):
 
     run = make_demo_run(tmp_path / "demo", seed=1, preset="easy", views=3, width=320, height=240, focal_px=200.0)
     d = load_viewer_data(run)
-    assert len(d.views) == 3 and (run / "viewer.json").is_file() and (run / "instance_tree.json").is_file()
+    from clutt3r_core.runs import read_run_info
+
+    # the scene is linked by run.json now (relative, so run and scene move together), not viewer.json
+    assert len(d.views) == 3 and str(read_run_info(run).scene) == "scene" and (run / "instance_tree.json").is_file()

@@ -1,0 +1,169 @@
+"""Colour layers: the ordered list of ways to colour the point cloud.
+
+A layer has a ``name`` (shown in the Scene tab's Colour list), ``available(inp)`` (whether
+this run, in this tab, has what it needs) and ``colors(inp, state) -> (M, 3) uint8`` for
+the displayed points ``inp.idx``. The Colour list shows the available layers in
+``COLOR_LAYERS`` order; the selected tree node is highlighted on top of any layer by the
+session. Append a layer with ``register_color_layer``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
+
+import numpy as np
+
+from clutt3r_viewer.data import GREY, ViewerData, label_colors, ramp_colors
+from clutt3r_viewer.state import SessionState
+
+if TYPE_CHECKING:
+    from clutt3r_viewer.events import EventSource
+
+__all__ = ["HIGHLIGHT", "LayerInput", "ColorLayer", "COLOR_LAYERS", "register_color_layer", "layer_named",
+           "available_layers", "InstanceLayer", "RgbLayer", "ConfidenceLayer", "ReplayLayer", "QueryLayer",
+           "UpdateLayer"]
+
+HIGHLIGHT = np.array([255, 215, 0], np.uint8)
+
+
+@dataclass(frozen=True, eq=False)
+class LayerInput:
+    """What a colour layer reads (one tab's view of the run).
+
+    Attributes:
+        data: the run.
+        idx: (M,) int64 indices of the displayed points (level of detail) into ``seg.points``.
+        instance: (N,) int32 instance per point shown: the corrected labels when the run has edits.
+        scores: (I,) float32 confidence per instance of ``instance``.
+        replay: the Replay panel's current event source, or None.
+    """
+
+    data: ViewerData
+    idx: np.ndarray
+    instance: np.ndarray
+    scores: np.ndarray
+    replay: "EventSource | None" = None
+
+
+@runtime_checkable
+class ColorLayer(Protocol):
+    name: str
+
+    def available(self, inp: LayerInput, state: SessionState) -> bool: ...
+
+    def colors(self, inp: LayerInput, state: SessionState) -> np.ndarray:
+        """(len(inp.idx), 3) uint8."""
+        ...
+
+
+@dataclass(frozen=True)
+class InstanceLayer:
+    name: str = "instance"
+
+    def available(self, inp: LayerInput, state: SessionState) -> bool:
+        return True
+
+    def colors(self, inp: LayerInput, state: SessionState) -> np.ndarray:
+        return label_colors(inp.instance[inp.idx])
+
+
+@dataclass(frozen=True)
+class RgbLayer:
+    name: str = "rgb"
+
+    def available(self, inp: LayerInput, state: SessionState) -> bool:
+        return True
+
+    def colors(self, inp: LayerInput, state: SessionState) -> np.ndarray:
+        return inp.data.seg.colors[inp.idx].copy()
+
+
+@dataclass(frozen=True)
+class ConfidenceLayer:
+    """Instance confidence on a ramp from 0 to the highest score; grey = no instance."""
+
+    name: str = "confidence"
+
+    def available(self, inp: LayerInput, state: SessionState) -> bool:
+        return True
+
+    def colors(self, inp: LayerInput, state: SessionState) -> np.ndarray:
+        inst = inp.instance[inp.idx]
+        col = np.tile(GREY, (len(inst), 1))
+        has = inst >= 0
+        hi = float(inp.scores.max()) if len(inp.scores) else 1.0
+        col[has] = ramp_colors(inp.scores[inst[has]], 0.0, hi)
+        return col
+
+
+@dataclass(frozen=True)
+class ReplayLayer:
+    """The Replay panel's event source at the tab's current event."""
+
+    name: str = "replay"
+
+    def available(self, inp: LayerInput, state: SessionState) -> bool:
+        return inp.replay is not None
+
+    def colors(self, inp: LayerInput, state: SessionState) -> np.ndarray:
+        assert inp.replay is not None
+        return inp.replay.colors(state.event, inp.idx)
+
+
+@dataclass(frozen=True)
+class QueryLayer:
+    """Text-query score per instance on a ramp; the best instance in the highlight colour."""
+
+    name: str = "query"
+
+    def available(self, inp: LayerInput, state: SessionState) -> bool:
+        return state.query_scores is not None and len(state.query_scores) == len(inp.scores)
+
+    def colors(self, inp: LayerInput, state: SessionState) -> np.ndarray:
+        sc = state.query_scores
+        assert sc is not None
+        inst = inp.instance[inp.idx]
+        col = np.tile(GREY, (len(inst), 1))
+        has = inst >= 0
+        col[has] = ramp_colors(sc[inst[has]], float(sc.min()), float(sc.max()))
+        col[inst == state.query_best] = HIGHLIGHT
+        return col
+
+
+@dataclass(frozen=True)
+class UpdateLayer:
+    """Instances after the selected post-interaction frame (the Updates panel)."""
+
+    name: str = "update"
+
+    def available(self, inp: LayerInput, state: SessionState) -> bool:
+        return any(u.point_instance is not None for u in inp.data.updates)
+
+    def colors(self, inp: LayerInput, state: SessionState) -> np.ndarray:
+        ups = inp.data.updates
+        if 0 <= state.update < len(ups) and ups[state.update].point_instance is not None:
+            return label_colors(ups[state.update].point_instance[inp.idx])
+        return label_colors(inp.instance[inp.idx])  # -1 = the initial segmentation
+
+
+COLOR_LAYERS: list[ColorLayer] = [InstanceLayer(), RgbLayer(), ConfidenceLayer(), ReplayLayer(), QueryLayer(),
+                                  UpdateLayer()]
+
+
+def register_color_layer(layer: ColorLayer) -> ColorLayer:
+    """Append a layer (names are unique: a layer with the same name is replaced in place)."""
+    for k, old in enumerate(COLOR_LAYERS):
+        if old.name == layer.name:
+            COLOR_LAYERS[k] = layer
+            return layer
+    COLOR_LAYERS.append(layer)
+    return layer
+
+
+def available_layers(inp: LayerInput, state: SessionState) -> list[ColorLayer]:
+    return [layer for layer in COLOR_LAYERS if layer.available(inp, state)]
+
+
+def layer_named(name: str) -> ColorLayer | None:
+    return next((layer for layer in COLOR_LAYERS if layer.name == name), None)

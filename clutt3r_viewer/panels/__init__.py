@@ -1,0 +1,25 @@
+"""The viewer's panels, one module each; ``PANELS`` is the order the session builds them in.
+
+Tabs appear in the order of their first panel. Add a panel by subclassing ``Panel``
+(``panels/base.py``) and appending the class here (or to ``PANELS`` from your own code
+before the server starts); see docs/architecture.md.
+"""
+
+from __future__ import annotations
+
+from clutt3r_viewer.panels.base import Change, Panel
+from clutt3r_viewer.panels.edit import EditPanel
+from clutt3r_viewer.panels.graph import LeafGraphPanel
+from clutt3r_viewer.panels.grasps import GraspsPanel
+from clutt3r_viewer.panels.query import QueryPanel
+from clutt3r_viewer.panels.replay import ReplayPanel
+from clutt3r_viewer.panels.scene import InstancesPanel, ScenePanel
+from clutt3r_viewer.panels.tree import TreePanel
+from clutt3r_viewer.panels.updates import UpdatesPanel
+from clutt3r_viewer.panels.views import ViewsPanel
+
+__all__ = ["Panel", "Change", "PANELS", "ViewsPanel", "ScenePanel", "InstancesPanel", "TreePanel", "LeafGraphPanel",
+           "ReplayPanel", "QueryPanel", "EditPanel", "GraspsPanel", "UpdatesPanel"]
+
+PANELS: list[type[Panel]] = [ViewsPanel, ScenePanel, InstancesPanel, TreePanel, LeafGraphPanel, ReplayPanel,
+                             QueryPanel, EditPanel, GraspsPanel, UpdatesPanel]
