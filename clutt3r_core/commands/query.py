@@ -1,0 +1,96 @@
+"""``clutt3r query RUN "the yellow mustard bottle" [--json] [--top K]``: which instance a phrase names.
+
+Prints the ranking (best first) with each instance's reason; with ``--json`` the last line
+is one JSON object ``{"query", "ranking": [{"instance", "score"}, ...] (every instance),
+"target", "confident", "time_s"}``. Writes the target's points to ``RUN/query_target.npz``
+(``points`` (P,3) float32 metres, ``colors`` (P,3) uint8, ``instance``, ``query``,
+``confident``) and ``RUN/query_target.ply``; both are removed when the run has no instance.
+The first query on a run embeds its masks (progress bar) and caches them in
+``RUN/query_cache.npz``.
+"""
+
+from __future__ import annotations
+
+import json as _json
+import time
+from pathlib import Path
+
+from tyro.conf import Positional
+
+__all__ = ["query_command", "write_target"]
+
+
+def write_target(run: Path, seg, res) -> Path | None:
+    """Write (or remove, when there is no target) ``query_target.npz`` / ``.ply``; the npz path."""
+    import numpy as np
+
+    from clutt3r_core.io.images import atomic_write_bytes, atomic_write_npz
+    from clutt3r_core.query import target_points
+    from clutt3r_core.runs import _ply_bytes
+
+    npz, ply = run / "query_target.npz", run / "query_target.ply"
+    if res.target is None:
+        for p in (npz, ply):
+            p.unlink(missing_ok=True)
+        return None
+    pts, cols = target_points(seg, res.target)
+    atomic_write_npz(npz, points=pts, colors=cols, instance=np.int32(res.target), query=np.array(res.query),
+                     confident=np.bool_(res.confident))
+    atomic_write_bytes(ply, _ply_bytes(pts, cols, np.full(len(pts), res.target, np.int32)))
+    return npz
+
+
+def query_command(
+    run: Positional[Path],
+    text: Positional[str],
+    json: bool = False,
+    top: int = 5,
+    backend: str | None = None,
+    scene: Path | None = None,
+) -> None:
+    """Find the instance of a run that a phrase names (offline language backend).
+
+    Args:
+        run: run folder written by `clutt3r segment`.
+        text: what to look for, e.g. "the yellow mustard bottle".
+        json: print one JSON object on the last line (every instance ranked).
+        top: instances listed in the human-readable output.
+        backend: text embedder (default: the registry's default, "imagenet-minilm").
+        scene: the scene folder, when the run does not record it (needed once, to embed the masks).
+    """
+    from rich.console import Console
+    from rich.markup import escape
+
+    from clutt3r_core.errors import Clutt3rError, MissingDependencyError
+
+    t0 = time.perf_counter()
+    err = Console(stderr=True)
+    if top < 1:
+        raise SystemExit(f"clutt3r query: --top must be >= 1, got {top}")
+    try:
+        from clutt3r_core.query import RunQuery, parse_query
+
+        parse_query(text)  # an empty query fails before any model loads
+        rq = RunQuery.open(run, backend=backend, scene=scene, progress=True)
+        res = rq.query(text)
+        write_target(Path(run), rq.seg, res)
+    except MissingDependencyError as e:
+        raise SystemExit(f"clutt3r query: {e}") from None
+    except Clutt3rError as e:
+        raise SystemExit(f"clutt3r query: {e}") from None
+    total = time.perf_counter() - t0
+    if json:
+        out = res.to_json()
+        out["time_s"] = round(total, 4)
+        print(_json.dumps(out))
+        return
+    con = Console()
+    if res.target is None:
+        con.print(f"{run}: the run has no instances")
+        return
+    verdict = "[green]confident[/]" if res.confident else "[yellow]not confident: nothing matches clearly[/]"
+    con.print(f"[bold]{escape(res.query)}[/] -> instance {res.target} ({verdict}); backend {res.backend}, "
+              f"{res.time_s * 1e3:.0f} ms query, {total:.1f} s total")
+    for rank, i in enumerate(res.ranking[:top], 1):
+        con.print(f"  {rank}. instance {i:3d}  score {res.scores[i]:+.2f}  {escape(res.explanations[i].summary())}")
+    err.print(f"target points -> {Path(run) / 'query_target.npz'}")
