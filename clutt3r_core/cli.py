@@ -22,6 +22,7 @@ _CORE_COMMANDS: dict[str, str] = {
     "doctor": "clutt3r_core.commands.doctor:doctor_command",
     "grasp": "clutt3r_core.commands.grasp:grasp_command",
     "query": "clutt3r_core.commands.query:query_command",
+    "update": "clutt3r_core.commands.update:update_command",
 }
 
 

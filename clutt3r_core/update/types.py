@@ -135,6 +135,19 @@ class ChangeConfig:
 
     tau_iou: float = 0.75
     """Sec. IV tau_IoU: a matched instance with IoU(projection, new mask) below this is displaced."""
+    verify: bool = True
+    """Ours: a flagged instance is confirmed displaced only when the optimised motion raises
+    its IoU by at least ``min_iou_gain`` AND moves it (centroid by >= ``min_translation`` or
+    turns it by >= ``min_rotation_deg``); otherwise it is static. Projected IoU of a static
+    object falls below tau_IoU from segmentation and reconstruction errors alone (thin
+    objects, parts missing from the stored cloud); the optimiser then finds no better pose.
+    False = the paper's rule (IoU < tau_IoU is displaced)."""
+    min_iou_gain: float = 0.05
+    """Ours, see ``verify``."""
+    min_translation: float = 0.01
+    """Ours, metres, see ``verify``."""
+    min_rotation_deg: float = 5.0
+    """Ours, degrees, see ``verify``."""
     splat_scale: float = 1.0
     """Ours: a point is splatted as a square of half-size ``splat_scale * voxel * f / z / 2``
     pixels, voxel = the cloud's voxel size (5 mm, Sec. IV), so neighbouring points close the

@@ -1,0 +1,184 @@
+"""Scene-update benchmark on generated pre/post pairs (issue 10 acceptance, Sec. III-C).
+
+For each pair (``clutt3r synth --prepost``: one object removed, a neighbour pushed 5-9 cm and
+turned 20-60 deg, one post view with depth and Grounded-SAM-like masks): segment the initial
+views, run ``update_scene`` on the post view, and score against ``gt/interaction.json``:
+
+- instances are mapped to ground-truth objects by their points (nearest labelled GT point
+  within 1 cm, majority; the instance with most points of an object is its *main* instance);
+- removed: recall = the removed object's main instance is reported removed; precision = of
+  the instances reported removed, the fraction that belong to the removed object;
+- displaced: the same with the displaced object (recall counted over pairs where the object is
+  visible in the post view, >= 200 px of the GT map);
+- static flagged: instances of untouched objects reported displaced or removed;
+- pose error of the displaced object's main instance: rotation angle of R_est R_gt^T (deg) and
+  distance between the instance centroid moved by the estimate and by the truth (cm);
+- IoU before/after of that instance, and wall time per update (the whole ``update_scene``).
+
+Usage::
+
+    .venv/bin/python benchmarks/bench_update.py --out /tmp/bench_update [--pairs 12] [--no-depth]
+
+Scenes and runs are cached under ``--out`` (delete to regenerate). Prints a markdown table and
+writes ``results.json`` and one overlay PNG per pair.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from clutt3r_core.io import load_scene
+from clutt3r_core.io.images import write_png
+from clutt3r_core.runs import save_run
+from clutt3r_core.scene import View
+from clutt3r_core.update.overlay import update_overlay
+from clutt3r_core.update.state import state_from_run
+from clutt3r_core.update.types import ChangeConfig, PoseConfig, UpdateConfig
+from clutt3r_core.update.update import update_scene
+
+PRESETS = ("easy", "intermediate", "hard")
+
+
+def make_pair(root: Path, preset: str, seed: int) -> tuple[Path, Path]:
+    from clutt3r_core.pipeline import segment
+    from clutt3r_core.synth import SynthConfig, generate, write_synth_scene
+
+    scene_dir, run_dir = root / f"{preset}_{seed}" / "scene", root / f"{preset}_{seed}" / "run"
+    if not (scene_dir / "gt" / "interaction.json").is_file():
+        res = generate(SynthConfig(seed=seed, preset=preset, prepost=True), progress=False)
+        write_synth_scene(res.scene, scene_dir, info=res.info)
+    if not (run_dir / "instances.npz").is_file():
+        sc = load_scene(scene_dir)
+        save_run(segment(sc), run_dir, scene_root=scene_dir)
+    return scene_dir, run_dir
+
+
+def gt_mapping(state, scene) -> tuple[dict[int, int], dict[int, int]]:
+    """(instance -> GT object or -1, GT object -> main instance)."""
+    gt = scene.ground_truth
+    tree = cKDTree(gt.points)
+    d, j = tree.query(state.points, distance_upper_bound=0.01)
+    lab = np.where(np.isfinite(d), gt.point_labels[np.minimum(j, len(gt.points) - 1)], -1)
+    inst_obj, counts = {}, {}
+    for k in state.instance_ids:
+        lk = lab[state.instance == k]
+        lk = lk[lk >= 0]
+        if not len(lk):
+            inst_obj[int(k)] = -1
+            continue
+        o = int(np.bincount(lk).argmax())
+        inst_obj[int(k)] = o if np.mean(lk == o) >= 0.5 else -1
+        counts.setdefault(o, []).append((int(np.sum(lk == o)), int(k)))
+    main = {o: max(v)[1] for o, v in counts.items()}
+    return inst_obj, main
+
+
+def rot_err_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(Ra @ Rb.T) - 1) / 2, -1, 1))))
+
+
+def run_pair(scene_dir: Path, run_dir: Path, cfg: UpdateConfig, no_depth: bool, overlay: Path | None):
+    sc = load_scene(scene_dir)
+    inter = json.loads((scene_dir / "gt" / "interaction.json").read_text())
+    state = state_from_run(run_dir)
+    view = sc.post_views[0]
+    if no_depth:
+        view = View(view.frame, view.rgb, view.camera, None, view.masks, view.name)
+    t = time.perf_counter()
+    res = update_scene(state, view, cfg)
+    dt = time.perf_counter() - t
+    if overlay is not None:
+        write_png(overlay, update_overlay(state, view, res))
+    inst_obj, main = gt_mapping(state, sc)
+    rem_o, dis_o = int(inter["removed_object"]), int(inter["displaced_object"])
+    T_gt = np.asarray(inter["T_new_old"])
+    gmap = sc.ground_truth.instance_maps.get(view.frame)
+    dis_visible = bool(gmap is not None and np.count_nonzero(gmap == dis_o) >= 200)
+    pred_removed = res.by_status("removed")
+    pred_displaced = res.by_status("displaced")
+    out = {
+        "scene": scene_dir.parent.name, "time_s": dt,
+        "removed_found": main.get(rem_o) in pred_removed,
+        "removed_pred": len(pred_removed), "removed_pred_true": sum(inst_obj.get(k) == rem_o for k in pred_removed),
+        "displaced_visible": dis_visible, "displaced_has_instance": dis_o in main,
+        "displaced_found": main.get(dis_o) in pred_displaced,
+        "displaced_pred": len(pred_displaced),
+        "displaced_pred_true": sum(inst_obj.get(k) == dis_o for k in pred_displaced),
+        "static_flagged": sum(1 for r in res.instances if r.status in ("removed", "displaced")
+                              and inst_obj.get(r.instance, -1) not in (rem_o, dis_o)),
+        "statuses": {str(r.instance): [r.status, inst_obj.get(r.instance, -1), r.match] for r in res.instances},
+    }
+    k = main.get(dis_o)
+    if k is not None and k in pred_displaced:
+        r = res.record(k)
+        c = state.points_of(k).astype(np.float64).mean(axis=0)
+        est, gt = r.T_world, T_gt
+        out.update(rot_err_deg=rot_err_deg(est[:3, :3], gt[:3, :3]),
+                   trans_err_cm=100 * float(np.linalg.norm((est[:3, :3] @ c + est[:3, 3]) - (gt[:3, :3] @ c + gt[:3, 3]))),
+                   gt_rot_deg=rot_err_deg(gt[:3, :3], np.eye(3)),
+                   iou_before=r.iou_before, iou_after=r.iou_after, stages=r.pose.stages, iters=len(r.pose.trace))
+    return out
+
+
+def summarise(rows: list[dict]) -> dict:
+    n = len(rows)
+    rem_pred = sum(r["removed_pred"] for r in rows)
+    dis_pred = sum(r["displaced_pred"] for r in rows)
+    vis = [r for r in rows if r["displaced_visible"] and r["displaced_has_instance"]]
+    pose = [r for r in rows if "rot_err_deg" in r]
+    q = lambda xs, p: float(np.percentile(xs, p)) if xs else float("nan")  # noqa: E731
+    rot = [r["rot_err_deg"] for r in pose]
+    tr = [r["trans_err_cm"] for r in pose]
+    return {
+        "pairs": n,
+        "removed_recall": sum(r["removed_found"] for r in rows) / n,
+        "removed_precision": sum(r["removed_pred_true"] for r in rows) / rem_pred if rem_pred else float("nan"),
+        "displaced_recall_visible": sum(r["displaced_found"] for r in vis) / len(vis) if vis else float("nan"),
+        "displaced_precision": sum(r["displaced_pred_true"] for r in rows) / dis_pred if dis_pred else float("nan"),
+        "static_flagged_total": sum(r["static_flagged"] for r in rows),
+        "rot_err_deg_median": q(rot, 50), "rot_err_deg_p90": q(rot, 90),
+        "trans_err_cm_median": q(tr, 50), "trans_err_cm_p90": q(tr, 90),
+        "iou_before_mean": float(np.mean([r["iou_before"] for r in pose])) if pose else float("nan"),
+        "iou_after_mean": float(np.mean([r["iou_after"] for r in pose])) if pose else float("nan"),
+        "time_s_median": q([r["time_s"] for r in rows], 50), "time_s_max": max(r["time_s"] for r in rows),
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", type=Path, default=Path("/tmp/bench_update"))
+    ap.add_argument("--pairs", type=int, default=12, help="pairs, spread evenly over the presets")
+    ap.add_argument("--seed0", type=int, default=100, help="first seed (seeds seed0.. per preset)")
+    ap.add_argument("--no-depth", action="store_true", help="drop the post view's depth (RGB-only update)")
+    ap.add_argument("--dof", choices=("se3", "yaw"), default="se3")
+    ap.add_argument("--no-verify", action="store_true", help="the paper's rule: IoU < tau_IoU is displaced")
+    ap.add_argument("--no-early-exit", action="store_true", help="always run the fine stage")
+    ap.add_argument("--tag", default="", help="suffix of results_<tag>.json")
+    a = ap.parse_args()
+    cfg = UpdateConfig(change=ChangeConfig(verify=not a.no_verify),
+                       pose=replace(PoseConfig(), dof=a.dof, early_exit=not a.no_early_exit))
+    a.out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for i in range(a.pairs):
+        preset, seed = PRESETS[i % 3], a.seed0 + i // 3
+        scene_dir, run_dir = make_pair(a.out, preset, seed)
+        r = run_pair(scene_dir, run_dir, cfg, a.no_depth, a.out / f"overlay_{preset}_{seed}{'_' + a.tag if a.tag else ''}.png")
+        rows.append(r)
+        print(json.dumps({k: (round(v, 3) if isinstance(v, float) else v) for k, v in r.items() if k != "statuses"}),
+              flush=True)
+    s = summarise(rows)
+    (a.out / f"results{'_' + a.tag if a.tag else ''}.json").write_text(json.dumps({"summary": s, "pairs": rows}, indent=1))
+    print("\n| metric | value |\n| --- | --- |")
+    for k, v in s.items():
+        print(f"| {k} | {v:.3f} |" if isinstance(v, float) else f"| {k} | {v} |")
+
+
+if __name__ == "__main__":
+    main()

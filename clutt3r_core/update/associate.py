@@ -1,0 +1,239 @@
+"""Association of a new view's mask candidates with the stored instances (Sec. III-C.2).
+
+The new view gets its own instance tree (``segmentation.trees.build_instance_tree``) and is
+matched to the stored instances with the hierarchy-based grouping of Sec. III-B, where the
+stored instances play the part of the already-formed groups:
+
+Similarities between a new mask m and a stored instance k:
+
+- S_spatial(m, k): 2D IoU of m with k's *visible* projection V_k (the stored points of all
+  present instances z-buffered into the new camera; V_k = the pixels k wins).
+- S_semantic(m, k): cosine of m's embedding (the state's embedder) and k's stored instance
+  embedding.
+
+Rules, in order (each instance takes at most one mask and each mask at most one instance):
+
+1. Leaves first, spatial stage: (leaf, instance) pairs with S_spatial >= tau_spat are matched
+   greedily, highest first (Algorithm 1's stage 1).
+2. Leaves, semantic stage: remaining pairs with S_semantic >= tau_sem, highest first
+   (stage 2; this is what finds a displaced object, whose projection has moved away).
+3. Parent substitution (Sec. III-B.3): a residual (unmatched) leaf is replaced by its tree
+   parent when all of the parent's descendant leaves are residual; the parents are then
+   matched to the remaining instances by rules 1 and 2.
+4. Parent upgrade (ours): an instance matched to a leaf takes the leaf's parent instead when
+   every other descendant leaf of that parent is residual and the parent's S_spatial is higher
+   (the leaf was an over-segmented part of a static object; its whole mask is the parent).
+5. An unmatched instance is ``occluded`` when it projects outside the image or its visible
+   projection keeps less than ``hidden_fraction`` of its own unoccluded projection, or (with
+   new depth) when most of its visible projection is covered by something ``nearer_margin``
+   in front of it; otherwise it is ``removed`` (its place is visible and it is not there).
+6. Unmatched masks (leaves, and parents that replaced residual leaves) are ``new`` unless
+   they lie at least ``part_fraction`` inside a matched mask (a part of a matched instance).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from clutt3r_core.scene import MaskCandidates, View
+from clutt3r_core.segmentation.trees import InstanceTree, build_instance_tree, subtree_leaves
+from clutt3r_core.update.project import splat
+from clutt3r_core.update.types import AssociationConfig
+
+__all__ = ["Projection", "Association", "project_instances", "associate"]
+
+
+@dataclass(frozen=True, eq=False)
+class Projection:
+    """The stored instances z-buffered into a camera.
+
+    Attributes:
+        ids: (K,) int32 instance ids projected.
+        label: (H, W) int32 id of the nearest instance per pixel, -1 where none.
+        depth: (H, W) float32 camera z of that point, inf where none.
+        own_area: (K,) int64 pixels of each instance's projection alone (no occluders), in the image.
+        visible_area: (K,) int64 pixels each instance wins in ``label``.
+    """
+
+    ids: np.ndarray
+    label: np.ndarray
+    depth: np.ndarray
+    own_area: np.ndarray
+    visible_area: np.ndarray
+
+    def visible(self, k: int) -> np.ndarray:
+        return self.label == k
+
+
+def project_instances(points: np.ndarray, instance: np.ndarray, ids: np.ndarray, camera, voxel: float,
+                      scale: float = 1.0) -> Projection:
+    """Z-buffer the points of instances ``ids`` (other points are ignored)."""
+    H, W = camera.height, camera.width
+    sel = np.isin(instance, ids)
+    s = splat(points[sel], camera, voxel, scale)
+    label = np.full((H, W), -1, np.int32)
+    depth = np.full((H, W), np.inf, np.float32)
+    if s.h and s.w:
+        lab_sel = instance[sel]
+        s_lab = np.where(s.point >= 0, lab_sel[np.maximum(s.point, 0)], -1)
+        label[s.v0 : s.v0 + s.h, s.u0 : s.u0 + s.w] = s_lab
+        depth[s.v0 : s.v0 + s.h, s.u0 : s.u0 + s.w] = s.zbuf
+    own = np.zeros(len(ids), np.int64)
+    for i, k in enumerate(ids):
+        sk = splat(points[instance == k], camera, voxel, scale)
+        own[i] = int(np.isfinite(sk.zbuf).sum()) if sk.h and sk.w else 0
+    vis = np.array([int(np.count_nonzero(label == k)) for k in ids], np.int64)
+    return Projection(np.asarray(ids, np.int32), label, depth, own, vis)
+
+
+@dataclass(frozen=True, eq=False)
+class Association:
+    """Which new mask each stored instance matched.
+
+    Attributes:
+        tree: the new view's instance tree.
+        instance_ids: (K,) int32 stored instances, in order.
+        mask_index: (K,) int64 index into the view's ``masks`` of the matched mask, -1 unmatched.
+        match: (K,) how each was matched ("spatial", "semantic", "parent-spatial",
+            "parent-semantic", "parent-upgrade", "" unmatched).
+        unmatched_status: (K,) "removed" / "occluded" for unmatched instances, "" otherwise.
+        new_masks: indices into ``masks`` of unmatched masks that are new objects.
+        s_spatial: (M, K) float32 S_spatial of every mask (by index into ``masks``) and instance.
+        s_semantic: (M, K) float32 S_semantic.
+    """
+
+    tree: InstanceTree
+    instance_ids: np.ndarray
+    mask_index: np.ndarray
+    match: tuple[str, ...]
+    unmatched_status: tuple[str, ...]
+    new_masks: tuple[int, ...]
+    s_spatial: np.ndarray
+    s_semantic: np.ndarray
+
+
+def _greedy(score: np.ndarray, tau: float, rows: list[int], cols: list[int]) -> list[tuple[int, int]]:
+    """Greedy one-to-one matching of rows x cols by descending score >= tau (ties: lower index)."""
+    if not rows or not cols:
+        return []
+    sub = score[np.ix_(rows, cols)]
+    cand = np.argwhere(np.nan_to_num(sub, nan=-np.inf) >= tau)
+    order = np.lexsort((cand[:, 1], cand[:, 0], -sub[cand[:, 0], cand[:, 1]])) if len(cand) else []
+    used_r, used_c, out = set(), set(), []
+    for i in order:
+        r, c = int(cand[i, 0]), int(cand[i, 1])
+        if r in used_r or c in used_c:
+            continue
+        used_r.add(r)
+        used_c.add(c)
+        out.append((rows[r], cols[c]))
+    return out
+
+
+def associate(
+    view: View,
+    proj: Projection,
+    embeddings: np.ndarray,
+    mask_embeddings: np.ndarray,
+    cfg: AssociationConfig = AssociationConfig(),
+    tree: InstanceTree | None = None,
+    stored_depth_check: bool = True,
+) -> Association:
+    """Match ``view.masks`` to the projected stored instances (rules in the module docstring).
+
+    embeddings: (K, D) stored instance embeddings (rows follow ``proj.ids``);
+    mask_embeddings: (M, D) embeddings of ``view.masks`` (rows follow the mask stack).
+    """
+    masks: MaskCandidates = view.masks if view.masks is not None else MaskCandidates.empty(
+        view.camera.height, view.camera.width)
+    tree = tree if tree is not None else build_instance_tree(masks, view.frame)
+    ids = proj.ids
+    K, M = len(ids), len(masks)
+    # S_spatial by label histograms of each mask's pixels
+    flat_lab = proj.label.reshape(-1)
+    lut = np.full(int(ids.max()) + 2 if K else 1, K, np.int64)
+    lut[ids] = np.arange(K)
+    lab_idx = np.where(flat_lab >= 0, lut[np.maximum(flat_lab, 0)], K)
+    areas = masks.areas()
+    s_spat = np.zeros((M, K), np.float32)
+    for m in range(M):
+        inter = np.bincount(lab_idx[masks.masks[m].reshape(-1)], minlength=K + 1)[:K]
+        union = areas[m] + proj.visible_area - inter
+        s_spat[m] = np.where(union > 0, inter / np.maximum(union, 1), 0.0)
+    e_new = np.asarray(mask_embeddings, np.float32)
+    s_sem = np.clip(e_new @ np.asarray(embeddings, np.float32).T, -1, 1) if K and M else np.zeros((M, K), np.float32)
+
+    # tree nodes as indices into the mask stack
+    node_mask = np.array([masks.index_of(int(i)) for i in tree.mask_ids], np.int64)
+    is_leaf = tree.is_leaf
+    leaves = subtree_leaves(tree.parent, is_leaf)
+    matched_node = np.full(K, -1, np.int64)  # tree node index per instance
+    how = [""] * K
+
+    def run_stages(nodes: list[int], prefix: str) -> None:
+        free_k = [k for k in range(K) if matched_node[k] < 0]
+        for kind, score, tau in (("spatial", s_spat, cfg.tau_spat), ("semantic", s_sem, cfg.tau_sem)):
+            rows = [int(node_mask[n]) for n in nodes if n not in set(matched_node.tolist())]
+            back = {int(node_mask[n]): n for n in nodes}
+            for r, k in _greedy(score, tau, rows, [k for k in free_k if matched_node[k] < 0]):
+                matched_node[k] = back[r]
+                how[k] = prefix + kind
+
+    leaf_nodes = [int(n) for n in np.flatnonzero(is_leaf)]
+    run_stages(leaf_nodes, "")
+    # rule 3: parent substitution of residual leaves
+    residual = set(leaf_nodes) - set(matched_node.tolist())
+    parents = sorted({int(tree.parent[n]) for n in residual if tree.parent[n] >= 0
+                      and set(leaves[int(tree.parent[n])].tolist()) <= residual})
+    consumed = set()
+    if parents:
+        run_stages(parents, "parent-")
+        for p in parents:
+            consumed |= set(leaves[p].tolist())
+    # rule 4: parent upgrade of matched leaves that are over-segmented parts
+    taken = set(matched_node.tolist())
+    for k in range(K):
+        n = int(matched_node[k])
+        if n < 0 or not is_leaf[n] or tree.parent[n] < 0:
+            continue
+        p = int(tree.parent[n])
+        others = set(leaves[p].tolist()) - {n}
+        if p in taken or not others or not others <= (residual - consumed):
+            continue
+        if s_spat[node_mask[p], k] > s_spat[node_mask[n], k]:
+            matched_node[k] = p
+            how[k] = "parent-upgrade"
+            taken.add(p)
+            consumed |= others
+    # rule 5: unmatched instances
+    status = [""] * K
+    depth = view.depth
+    for k in range(K):
+        if matched_node[k] >= 0:
+            continue
+        own, vis = proj.own_area[k], proj.visible_area[k]
+        hidden = own == 0 or vis < cfg.hidden_fraction * own
+        if not hidden and depth is not None and stored_depth_check:
+            sel = proj.label == ids[k]
+            d = depth[sel]
+            ok = np.isfinite(d)
+            if ok.sum() > 0:
+                hidden = np.mean(d[ok] < proj.depth[sel][ok] - cfg.nearer_margin) > 0.5
+        status[k] = "occluded" if hidden else "removed"
+    # rule 6: new masks
+    taken = set(int(x) for x in matched_node if x >= 0)
+    matched_union = np.zeros(masks.shape, bool)
+    for n in taken:
+        matched_union |= masks.masks[node_mask[n]]
+    cand = [n for n in leaf_nodes if n not in taken and n not in consumed] + [p for p in parents if p not in taken]
+    new = []
+    for n in sorted(set(cand)):
+        mi = int(node_mask[n])
+        a = areas[mi]
+        if a and np.count_nonzero(masks.masks[mi] & matched_union) >= cfg.part_fraction * a:
+            continue
+        new.append(mi)
+    mask_index = np.where(matched_node >= 0, node_mask[np.maximum(matched_node, 0)], -1)
+    return Association(tree, ids, mask_index.astype(np.int64), tuple(how), tuple(status), tuple(new), s_spat, s_sem)

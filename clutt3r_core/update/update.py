@@ -1,0 +1,143 @@
+"""One scene update: association, change detection, pose update (Sec. III-C).
+
+``update_scene(state, view)`` -> ``UpdateResult``; ``apply_update`` (state.py) turns it into
+the next state.
+
+Change detection (Sec. III-C.3): every matched instance's stored points are z-buffered into
+the new camera together with the other present instances (removed ones are gone, so what
+they hid counts as visible); its IoU with its new mask below tau_IoU flags it displaced.
+A second pass (ours) re-checks each flagged instance without the other flagged instances in
+the z-buffer and ignoring the pixels where those were (old projection) or are (new mask):
+a static object that a displaced neighbour used to hide, or now hides, must not be flagged
+for its neighbour's motion. Static instances are left untouched.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from clutt3r_core.errors import SceneError
+from clutt3r_core.scene import MaskCandidates, View
+from clutt3r_core.segmentation.trees import build_instance_tree
+from clutt3r_core.update.associate import Association, Projection, associate, project_instances
+from clutt3r_core.update.project import mask_iou
+from clutt3r_core.update.state import SceneState
+from clutt3r_core.update.types import InstanceUpdate, NewMask, PoseProblem, UpdateConfig, UpdateResult
+
+__all__ = ["update_scene", "UpdateDetails"]
+
+
+class UpdateDetails:
+    """Intermediates of the last ``update_scene`` call, for the viewer and the tests
+    (the association with its similarities, the projection before the update)."""
+
+    association: Association
+    projection: Projection
+
+
+def _moved(res, centroid: np.ndarray, iou_before: float, config: UpdateConfig) -> bool:
+    """ChangeConfig.verify: the optimised motion is real (better fit and a real move)."""
+    c = config.change
+    T = res.T_world
+    shift = float(np.linalg.norm(T[:3, :3] @ centroid + T[:3, 3] - centroid))
+    angle = float(np.degrees(np.arccos(np.clip((np.trace(T[:3, :3]) - 1) / 2, -1, 1))))
+    return res.iou_after >= iou_before + c.min_iou_gain and (shift >= c.min_translation or angle >= c.min_rotation_deg)
+
+
+def _iou_without(a: np.ndarray, b: np.ndarray, ignore: np.ndarray) -> float:
+    keep = ~ignore
+    return mask_iou(a & keep, b & keep)
+
+
+def update_scene(
+    state: SceneState,
+    view: View,
+    config: UpdateConfig = UpdateConfig(),
+    *,
+    optimizer=None,
+    embedder=None,
+    details: UpdateDetails | None = None,
+) -> UpdateResult:
+    """Update ``state`` from one post-interaction ``view`` (RGB, its masks, depth optional).
+
+    optimizer: a ``PoseOptimizer`` (default: the registry's ``config.optimizer`` built with
+    ``config.pose``); embedder: a ``MaskEmbedder`` (default: ``state.embedder``).
+    """
+    t0 = time.perf_counter()
+    if view.masks is None:
+        raise SceneError(f"{view.name or f'frame {view.frame}'}: the post-interaction view has no mask candidates")
+    if optimizer is None:
+        from clutt3r_core.registry import create_backend
+
+        optimizer = create_backend("pose_optimizer", config.optimizer, config=config.pose)
+    if embedder is None:
+        from clutt3r_core.embeddings import create_embedder
+
+        embedder = create_embedder(state.embedder)
+    cam = view.camera
+    masks: MaskCandidates = view.masks
+    ids = state.instance_ids
+    voxel, scale = state.voxel_size, config.change.splat_scale
+
+    tree = build_instance_tree(masks, view.frame)
+    mask_emb = embedder.embed_masks(view.rgb, masks.masks) if len(masks) else np.zeros((0, state.embeddings.shape[1]))
+    proj_all = project_instances(state.points, state.instance, ids, cam, voxel, scale)
+    assoc = associate(view, proj_all, state.embeddings, mask_emb, config.association, tree=tree)
+    if details is not None:
+        details.association, details.projection = assoc, proj_all
+
+    status = {int(k): s for k, s in zip(ids, assoc.unmatched_status) if s}
+    new_mask = {int(k): masks.masks[mi] for k, mi in zip(ids, assoc.mask_index) if mi >= 0}
+    present = np.array([k for k in ids if status.get(int(k)) != "removed"], np.int32)
+    # pass 1: z-buffer of every instance still there
+    proj = project_instances(state.points, state.instance, present, cam, voxel, scale)
+    iou = {k: mask_iou(proj.label == k, m) for k, m in new_mask.items()}
+    flagged = {k for k, v in iou.items() if v < config.change.tau_iou}
+    # pass 2: re-check flagged instances without the other flagged ones (module docstring)
+    if len(flagged) > 1 or (flagged and len(new_mask) > 1):
+        for k in sorted(flagged):
+            others = flagged - {k}
+            if not others:
+                continue
+            keep = np.array([j for j in present if j not in others], np.int32)
+            pk = project_instances(state.points, state.instance, keep, cam, voxel, scale)
+            ignore = np.zeros(masks.shape, bool)
+            for j in others:
+                ignore |= (proj.label == j) | new_mask[j]
+            v2 = _iou_without(pk.label == k, new_mask[k], ignore)
+            if v2 >= config.change.tau_iou:
+                iou[k] = v2
+    displaced = sorted(k for k, v in iou.items() if v < config.change.tau_iou)
+
+    records: list[InstanceUpdate] = []
+    static_ids = np.array([k for k in present if int(k) not in displaced], np.int32)
+    occ_proj = project_instances(state.points, state.instance, static_ids, cam, voxel, scale) if displaced else None
+    for i, k in enumerate(ids):
+        k = int(k)
+        mi = int(assoc.mask_index[i])
+        mid = int(masks.ids[mi]) if mi >= 0 else -1
+        if k in status:
+            records.append(InstanceUpdate(k, status[k], None, None, None, mid, assoc.match[i]))
+        elif k not in displaced:
+            records.append(InstanceUpdate(k, "static", iou[k], iou[k], None, mid, assoc.match[i]))
+        else:
+            sel = state.instance == k
+            pb = PoseProblem(
+                instance=k, points=state.points[sel], colors=state.colors[sel], camera=cam, rgb=view.rgb,
+                mask=new_mask[k], occluder_depth=occ_proj.depth, depth=view.depth, voxel_size=voxel,
+            )
+            res = optimizer.optimize(pb)
+            if config.change.verify and not _moved(res, state.points[sel].mean(axis=0), iou[k], config):
+                records.append(InstanceUpdate(k, "static", iou[k], iou[k], None, mid, assoc.match[i], pose=res))
+            else:
+                records.append(InstanceUpdate(k, "displaced", iou[k], res.iou_after, res.T_world, mid,
+                                              assoc.match[i], pose=res))
+    new = tuple(NewMask(int(masks.ids[mi]), int(masks.areas()[mi])) for mi in assoc.new_masks)
+    change = np.zeros((len(ids), *masks.shape), bool)
+    for i, k in enumerate(ids):
+        if int(k) in new_mask:
+            change[i] = new_mask[int(k)]
+    return UpdateResult(frame=view.frame, instances=tuple(records), new_masks=new, change_masks=change,
+                        projected=proj_all.label, time_s=time.perf_counter() - t0)
