@@ -24,16 +24,14 @@ JSON, PNG plots) is written by ``evaluation/report.py``; the types shared by bot
 
 from __future__ import annotations
 
-import functools
-import hashlib
 import json
 import os
 import pickle
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Callable, Iterable, Iterator, Literal, Protocol, Sequence, TypeVar
+from typing import Callable, Iterator, Protocol, Sequence, TypeVar
 
 import numpy as np
 
