@@ -3,13 +3,15 @@
 ``plan_antipodal(request, config) -> GraspSet``, a pure function, in five steps:
 
 1. **Contact pairs.** Up to ``max_first_contacts`` target points ``p`` are paired with up to
-   ``max_second_contacts`` target points ``q``. A pair is antipodal when the line p -> q lies
-   within ``pair_angle_deg`` of the inward normal at both ends (``-n_p`` at p, ``-n_q`` at q;
-   the fused normals point outwards, towards the cameras) and ``|q - p|`` fits the hand
-   (``min_pair_distance`` .. ``max_width - 2 * min_finger_margin``). The best pairs, one per
-   (1 cm centre cell, closing-axis bin), are kept (``max_pairs``).
-2. **Gripper fit.** The closing axis x is p -> q; the opening is ``|q - p| + 2 * finger_margin``
-   (capped at the hand's maximum); the approach z is swept around x in ``approach_steps``
+   ``max_second_contacts`` target points ``q``. The closing axis x of a pair bisects the two
+   inward normals (``-n_p`` at p and ``n_q`` seen from p; the fused normals point outwards,
+   towards the cameras). A pair is antipodal when x lies within ``pair_angle_deg`` of both
+   inward normals, the line p -> q within ``line_angle_deg`` of them (the contacts face each
+   other), and the extent ``(q - p) . x`` fits the hand (``min_pair_distance`` ..
+   ``max_width - 2 * min_finger_margin``). The best pairs, one per (1 cm centre cell,
+   closing-axis bin), are kept (``max_pairs``).
+2. **Gripper fit.** The opening is ``(q - p) . x + 2 * finger_margin`` (capped at the hand's
+   maximum); the grasp centre starts at the pair's midpoint; the approach z is swept around x in ``approach_steps``
    angles starting from the preferred approach, and the grasp centre is shifted along z by
    each ``depth_offsets`` (positive = deeper: the contacts move towards the palm).
 3. **Collisions against the whole fused cloud** (support included). Fingers and the closing
@@ -75,8 +77,12 @@ class AntipodalConfig:
     max_second_contacts: int = 1536
     """Second contacts q sampled from the target (a 5 mm cloud of a 15 cm object has ~1500 points)."""
     pair_angle_deg: float = 20.0
-    """Largest angle between the closing line and either inward normal for a pair to count as
-    antipodal (tan 20 deg = 0.36: force closure at friction 0.36 on the observed normals)."""
+    """Largest angle between the closing axis (the bisector of the two inward normals) and either
+    inward normal for a pair to count as antipodal (tan 20 deg = 0.36: force closure at friction
+    0.36 on the observed normals)."""
+    line_angle_deg: float = 30.0
+    """Largest angle between the line p -> q and either inward normal (the contacts must face each
+    other across the object; looser than ``pair_angle_deg`` since the axis comes from the normals)."""
     min_pair_distance: float = 0.004
     """Shortest contact distance, metres (thinner than ~a voxel is noise, not an object)."""
     finger_margin: float = 0.01
@@ -135,7 +141,8 @@ class AntipodalConfig:
     def __post_init__(self) -> None:
         checks = {
             "max_first_contacts": self.max_first_contacts >= 1, "max_second_contacts": self.max_second_contacts >= 1,
-            "pair_angle_deg": 0 < self.pair_angle_deg < 90, "min_pair_distance": self.min_pair_distance >= 0,
+            "pair_angle_deg": 0 < self.pair_angle_deg < 90,
+            "line_angle_deg": 0 < self.line_angle_deg < 90, "min_pair_distance": self.min_pair_distance >= 0,
             "finger_margin": self.finger_margin >= 0, "min_finger_margin": 0 <= self.min_finger_margin,
             "max_pairs": self.max_pairs >= 1, "approach_steps": self.approach_steps >= 1,
             "collision_pad": self.collision_pad >= 0, "grid_cell": self.grid_cell > 0,
@@ -256,7 +263,8 @@ def _sample(n: int, k: int, rng: np.random.Generator) -> np.ndarray:
 
 
 def _pairs(tp: np.ndarray, tn: np.ndarray, cfg: AntipodalConfig, rng: np.random.Generator):
-    """Antipodal contact pairs: (p (P,3), q (P,3), quality cos (P,)) best first, one per cell and axis bin."""
+    """Antipodal contact pairs (p (P,3), q (P,3), closing axis (P,3), quality cos (P,)), best first,
+    one per 1 cm centre cell and closing-axis bin."""
     g = cfg.gripper
     ip = _sample(len(tp), cfg.max_first_contacts, rng)
     iq = _sample(len(tp), cfg.max_second_contacts, rng)
@@ -268,14 +276,18 @@ def _pairs(tp: np.ndarray, tn: np.ndarray, cfg: AntipodalConfig, rng: np.random.
         u = d / dist[..., None]
     cos1 = -np.einsum("pqk,pk->pq", u, Np)  # line vs inward normal at p
     cos2 = np.einsum("pqk,qk->pq", u, Nq)  # line vs inward normal at q (-u . -n_q)
-    cmin = np.minimum(cos1, cos2)
-    ok = (cmin >= np.cos(np.radians(cfg.pair_angle_deg))) & (dist >= max(cfg.min_pair_distance, 1e-6)) & \
+    # the closing axis bisects the two inward normals (-n_p and n_q seen from p): on flat faces and
+    # convex surfaces the fingers then close along the surface normal, whatever the exact p and q
+    nn = -np.einsum("pk,qk->pq", Np, Nq)  # cos of the angle between -n_p and n_q
+    cos_h = np.sqrt(np.clip((1 + nn) / 2, 0, 1))  # cos of half that angle: axis vs each inward normal
+    ok = (np.minimum(cos1, cos2) >= np.cos(np.radians(cfg.line_angle_deg))) & \
+         (cos_h >= np.cos(np.radians(cfg.pair_angle_deg))) & (dist >= max(cfg.min_pair_distance, 1e-6)) & \
          (dist <= g.max_width - 2 * cfg.min_finger_margin)
     a, b = np.nonzero(ok)
     if len(a) == 0:
-        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
-    p, q, c = P[a], Q[b], cmin[a, b]
-    axis = u[a, b]
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
+    p, q, c = P[a], Q[b], cos_h[a, b]
+    axis = _unit(Nq[b] - Np[a])
     # canonical axis sign (the hand is symmetric): first non-negligible component positive
     sgn = np.where(np.abs(axis[:, 0]) > 1e-3, np.sign(axis[:, 0]),
                    np.where(np.abs(axis[:, 1]) > 1e-3, np.sign(axis[:, 1]), np.sign(axis[:, 2])))
@@ -286,7 +298,7 @@ def _pairs(tp: np.ndarray, tn: np.ndarray, cfg: AntipodalConfig, rng: np.random.
     keys = np.concatenate([key_c, key_a], axis=1)[order]
     _, first = np.unique(keys, axis=0, return_index=True)
     keep = order[np.sort(first)][: cfg.max_pairs]
-    return p[keep], q[keep], c[keep]
+    return p[keep], q[keep], axis[keep], c[keep]
 
 
 def plan_antipodal(request: GraspRequest, config: AntipodalConfig = AntipodalConfig()) -> tuple[GraspSet, PlanStats]:
@@ -304,7 +316,7 @@ def plan_antipodal(request: GraspRequest, config: AntipodalConfig = AntipodalCon
 
     if len(tp) < cfg.min_target_points:
         return empty(f"no grasp: the target has {len(tp)} points (at least {cfg.min_target_points} needed)", stats)
-    P, Q, qual = _pairs(tp, tn, cfg, rng)
+    P, Q, x, qual = _pairs(tp, tn, cfg, rng)
     secs["pairs"] = time.perf_counter() - t0
     stats = PlanStats(target_points=len(tp), pairs=len(P))
     if len(P) == 0:
@@ -312,9 +324,8 @@ def plan_antipodal(request: GraspRequest, config: AntipodalConfig = AntipodalCon
                      f"(opening <= {g.max_width} m, normals within {cfg.pair_angle_deg} deg)", stats)
 
     # -- gripper frames: x closing, z approach swept around x, y = z x x
-    x = _unit(Q - P)
     mid = (P + Q) / 2
-    dist = np.linalg.norm(Q - P, axis=1)
+    dist = np.einsum("pk,pk->p", Q - P, x)  # extent of the pair along the closing axis
     width = np.minimum(dist + 2 * cfg.finger_margin, g.max_width)
     pref = _unit(np.asarray(cfg.preferred_approach, float))
     z0 = pref[None] - (x @ pref)[:, None] * x
