@@ -53,7 +53,7 @@ def gripper_parts() -> dict[str, tuple[np.ndarray, np.ndarray]] | None:
 def gripper_mesh(T_world_gripper: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray] | None:
     """(vertices (V, 3) float32 world, faces (F, 3) int32) of the gripper opened to ``width`` metres.
 
-    Fingers move to x = -/+ width / 2 and the palm stretches to span them (static/make_gripper.py).
+    Fingers move to x = -/+ width / 2; the palm keeps its size (docs/conventions.md, "Gripper").
     """
     parts = gripper_parts()
     if parts is None:
@@ -67,8 +67,6 @@ def gripper_mesh(T_world_gripper: np.ndarray, width: float) -> tuple[np.ndarray,
             v[:, 0] -= shift
         elif name == "finger_right":
             v[:, 0] += shift
-        elif name == "palm":
-            v[:, 0] += np.sign(v[:, 0]) * shift
         verts.append(v)
         faces.append(f + offset)
         offset += len(v)

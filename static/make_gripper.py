@@ -1,39 +1,37 @@
-"""Write static/gripper.obj: a parallel-jaw gripper in four named parts (run once; output is committed).
+"""Write static/gripper.obj: the parallel-jaw gripper of docs/conventions.md ("Gripper"), in three named parts.
 
-Gripper frame (the viewer's grasp convention): z = approach direction, x = closing direction,
-fingertips at the origin. Parts: ``palm`` (spans the opening), ``finger_left`` (x < 0),
-``finger_right`` (x > 0) and ``wrist``. The nominal opening is 0.08 m; the viewer moves the
-fingers and stretches the palm to each grasp's width.
+The numbers come from ``clutt3r_core.grasping.gripper.GripperGeometry`` (the one source the
+planner and the evaluator use too): origin at the grasp centre (midpoint between the finger
+pads), z = approach (palm towards fingertips), x = closing axis. Parts: ``finger_left``
+(x < 0), ``finger_right`` and ``palm``, drawn fully open (width = ``max_width``); the viewer
+moves the fingers to each grasp's width, the palm keeps its size. Run once; the output is committed:
+
+    .venv/bin/python static/make_gripper.py
 """
 
 from pathlib import Path
 
 import trimesh
 
-OPENING = 0.08
-DEPTH = 0.05  # finger length, m
-T = 0.008  # finger and palm thickness, m
+from clutt3r_core.grasping.gripper import FRANKA, GripperGeometry
 
 
-def parts() -> dict[str, trimesh.Trimesh]:
-    def box(extents, centre):
-        m = trimesh.creation.box(extents=extents)
-        m.apply_translation(centre)
-        return m
-
-    half = OPENING / 2
-    return {
-        "palm": box((OPENING + 2 * T, 0.02, T), (0, 0, -DEPTH - T / 2)),
-        "finger_left": box((T, 0.02, DEPTH), (-half - T / 2, 0, -DEPTH / 2)),
-        "finger_right": box((T, 0.02, DEPTH), (half + T / 2, 0, -DEPTH / 2)),
-        "wrist": box((0.012, 0.012, DEPTH), (0, 0, -1.5 * DEPTH - T)),
-    }
+def parts(geometry: GripperGeometry = FRANKA) -> dict[str, trimesh.Trimesh]:
+    out = {}
+    boxes = geometry.boxes(geometry.max_width)
+    for name in ("palm", "finger_left", "finger_right"):
+        b = boxes[name]
+        m = trimesh.creation.box(extents=[2 * h for h in b.half])
+        m.apply_translation(b.centre)
+        out[name] = m
+    return out
 
 
-def write(path: Path) -> None:
-    lines = ["# Clutt3R parallel-jaw gripper (static/make_gripper.py); metres, z = approach"]
+def write(path: Path, geometry: GripperGeometry = FRANKA) -> None:
+    lines = [f"# Clutt3R parallel-jaw gripper (static/make_gripper.py, GripperGeometry); metres, z = approach, "
+             f"x = closing, origin = grasp centre, opening {geometry.max_width} m"]
     offset = 1
-    for name, m in parts().items():
+    for name, m in parts(geometry).items():
         lines.append(f"o {name}")
         lines += [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in m.vertices]
         lines += [f"f {a + offset} {b + offset} {c + offset}" for a, b, c in m.faces]
