@@ -58,6 +58,11 @@ class QueryConfig:
     """``confident`` iff the best instance's score exceeds the runner-up's by this much AND
     its name-or-colour evidence is positive (ours: bench_query, queries for present objects
     against queries for absent ones)."""
+    center: bool = True
+    """Label mode: compare the query with each instance's log-probabilities minus their mean
+    over the classes. Without it a vague query (q spread over many classes) favours the
+    instance whose prediction is flattest, since the mean of log p is largest for a flat p
+    (ours: bench_query, both variants)."""
     explain_classes: int = 3
     """Class names listed in each instance's explanation."""
 
@@ -209,7 +214,10 @@ def score_instances(
             s = label_embeddings.astype(np.float64) @ t / config.temperature
             q = np.exp(s - s.max())
             q /= q.sum()
-            raw = inst.grounding.astype(np.float64) @ q
+            lp = inst.grounding.astype(np.float64)
+            if config.center:
+                lp = lp - lp.mean(axis=1, keepdims=True)
+            raw = lp @ q
         else:
             if inst.grounding.shape[1] != t.shape[0]:
                 raise SceneError(f"text embedding has {t.shape[0]} dims, instance evidence {inst.grounding.shape[1]}")
