@@ -313,6 +313,18 @@ for _name, _desc in (
 del _name, _desc
 
 # -- mask generators (issue 11): register below this line ---------------------------------------
+register_backend(
+    "mask_generator", "builtin", "clutt3r_core.masks.builtin:BuiltinMaskGenerator", requires=("skimage=scikit-image",),
+    description="multi-scale RGB-D segmentation with a containment hierarchy (ours; no weights)", priority=1,
+)
+register_backend(
+    "mask_generator", "import", "clutt3r_core.masks.imported:ImportMaskGenerator",
+    description="candidates from files: mask PNG folder, per-view npz, COCO RLE JSON (needs source=PATH)",
+)
+register_backend(
+    "mask_generator", "sam-onnx", "clutt3r_core.masks.sam_onnx:SamOnnxMaskGenerator", requires=("onnxruntime",),
+    description="SAM / MobileSAM encoder+decoder exported to ONNX, local paths (encoder=, decoder=); no download",
+)
 
 # -- language: text-capable embedders (issue 17): register below this line ----------------------
 for _kind in ("mask_embedder", "text_embedder"):
