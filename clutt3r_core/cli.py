@@ -18,6 +18,7 @@ __all__ = ["main", "available_commands"]
 _CORE_COMMANDS: dict[str, str] = {
     "synth": "clutt3r_core.synth.cli:synth_command",
     "segment": "clutt3r_core.commands.segment:segment_command",
+    "masks": "clutt3r_core.commands.masks:masks_command",
     "bench": "clutt3r_core.commands.bench:bench_command",
     "doctor": "clutt3r_core.commands.doctor:doctor_command",
     "grasp": "clutt3r_core.commands.grasp:grasp_command",

@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
+
+import tyro
 
 from tyro.conf import Positional
+
+from clutt3r_core.commands.masks import MaskOptions
 
 from clutt3r_core.config import PRESETS, SegmentConfig
 
@@ -17,6 +21,7 @@ def segment_command(
     out: Path,
     config: SegmentConfig = SegmentConfig(),
     preset: Literal["", "default", "paper", "no-spatial", "no-substitution"] = "",
+    mask_options: Annotated[MaskOptions, tyro.conf.arg(name="")] = MaskOptions(),
 ) -> None:
     """Segment a scene folder (sample layout or BOP) and write the run to OUT.
 
@@ -25,9 +30,12 @@ def segment_command(
         out: run folder to write (instances.npz, instances.ply, instance_tree.json, trace/).
         config: every stage's settings (paper defaults, Sec. IV).
         preset: if set, one of default / paper / no-spatial / no-substitution; replaces --config.
+        mask_options: where the mask candidates come from (--masks auto|builtin|import|sam-onnx);
+            generated ones are written to OUT/instance_masks/ and named in OUT/run.json.
     """
     from rich.console import Console
 
+    from clutt3r_core.commands.masks import prepare_masks, record_run_masks
     from clutt3r_core.io import load_scene
     from clutt3r_core.io.images import write_png
     from clutt3r_core.pipeline import segment
@@ -39,9 +47,11 @@ def segment_command(
         config = PRESETS[preset]
     with console.status(f"loading {scene}"):
         sc = load_scene(scene)
+    sc, mask_generator = prepare_masks(sc, mask_options, console)
     seg = segment(sc, config, progress=True)
     # the folder load_scene read (a release sample's data/ inside SCENE), so the viewer finds the images
     save_run(seg, out, scene_root=sc.root if sc.root is not None else scene)
+    record_run_masks(out, sc, mask_generator)
     write_png(Path(out) / "overview.png", overview_sheet(seg.points, seg.instance, sc))
     t = seg.trace
     console.print(
