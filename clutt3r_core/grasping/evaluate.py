@@ -9,9 +9,9 @@ any support boxes (a tray):
 - **holds the target and nothing else**: the closing region contains at least
   ``min_target_samples`` surface samples of the target, none of any other object, and does not
   overlap the table or a support box;
-- **contacts**: the target's surface samples inside the closing region with the smallest and the
-  largest gripper x (where the closing fingers, moving along x, first touch it), with the face
-  normals there;
+- **contacts**: where the closing fingers, moving along x, first touch the target: the centroid
+  and mean face normal of the target's surface samples inside the closing region within
+  ``contact_tolerance`` of the smallest (x < 0 finger) and of the largest gripper x;
 - **force closure** (two point contacts with friction, the test GraspNet takes from Dex-Net):
   the line between the contacts lies inside both friction cones, i.e. its angle to each inward
   normal is at most ``atan(mu)``. ``min_mu`` is the smallest friction coefficient for which the
@@ -68,6 +68,10 @@ class EvalConfig:
     1 cm finger is sampled ~40 times)."""
     inside_spacing: float = 0.01
     """Spacing of the box sample points tested for lying inside a closed mesh, metres."""
+    contact_tolerance: float = 0.001
+    """A finger's contact is the centroid (and mean normal) of the target's surface samples within
+    this distance of the first touch along x (one sample would pick an arbitrary point of a flat
+    face and tilt the line between the contacts), metres."""
     min_target_samples: int = 5
     """Least target surface samples in the closing region for the grasp to hold it."""
     seed: int = 0
@@ -205,11 +209,18 @@ class GraspEvaluator:
                         and not self._box_hits_support(T, boxes["closing"]))
             if tgt.any():
                 ti = np.flatnonzero(tgt)
-                a, b = ti[np.argmin(loc[ti, 0])], ti[np.argmax(loc[ti, 0])]
-                c1, c2 = self._pts[idx[a]], self._pts[idx[b]]
+                tol = self.config.contact_tolerance
+                xs = loc[ti, 0]
+                a = ti[xs <= xs.min() + tol]  # the patch the x < 0 finger touches first
+                b = ti[xs >= xs.max() - tol]
+                c1, c2 = self._pts[idx[a]].mean(0), self._pts[idx[b]].mean(0)
                 contacts[i] = (c1, c2)
-                min_mu[i] = _min_mu(c1, self._nrm[idx[a]], c2, self._nrm[idx[b]])
+                min_mu[i] = _min_mu(c1, _unit(self._nrm[idx[a]].sum(0)), c2, _unit(self._nrm[idx[b]].sum(0)))
         return GraspEval(coll, holds, contacts, min_mu)
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / max(float(np.linalg.norm(v)), 1e-12)
 
 
 def _min_mu(c1: np.ndarray, n1: np.ndarray, c2: np.ndarray, n2: np.ndarray) -> float:
