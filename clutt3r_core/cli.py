@@ -4,11 +4,18 @@ Commands of the core are listed in ``_CORE_COMMANDS`` (``module:function``), imp
 only when the CLI starts. Other packages add commands through the entry-point group
 ``clutt3r.commands`` (the viewer adds ``view`` and ``export-rerun``), so the core
 never imports them by name.
+
+Errors: a user error (any ``Clutt3rError``: a broken scene file, a missing run file, a
+missing optional package) prints one line, ``clutt3r: error: <file>: <problem>``, and exits
+with status 2, like tyro's own errors for bad arguments. ``--debug`` (anywhere on the
+command line) or ``CLUTT3R_DEBUG=1`` prints the traceback too. Library calls keep
+raising the typed errors; only this entry point turns them into a line.
 """
 
 from __future__ import annotations
 
 import importlib
+import os
 import sys
 from importlib.metadata import entry_points
 from typing import Callable
@@ -50,17 +57,76 @@ def available_commands() -> dict[str, Callable]:
     return cmds
 
 
+DEBUG_FLAG = "--debug"
+DEBUG_ENV = "CLUTT3R_DEBUG"
+USER_ERROR_STATUS = 2
+"""Exit status of a user error (tyro uses 2 for bad arguments, as argparse does)."""
+
+
+def _debug_requested(args: list[str]) -> tuple[list[str], bool]:
+    """(args without ``--debug``, whether a traceback was asked for by the flag or the variable)."""
+    env = os.environ.get(DEBUG_ENV, "").strip().lower() not in ("", "0", "false", "no")
+    rest = [a for a in args if a != DEBUG_FLAG]
+    return rest, env or len(rest) != len(args)
+
+
+def _quiet_third_party() -> None:
+    """Keep OpenCV's own log lines off the terminal: every image failure becomes our error.
+
+    Must run before cv2 is first imported (it reads the variable once); a value the user
+    set is kept. libpng's own "libpng error" lines are avoided by checking PNG files
+    before decoding them (``io.images``).
+    """
+    os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
+
+
+def _fail(message: str) -> None:
+    # one line, whatever the message holds: a terminal user and a log parser both want one
+    line = " ".join(str(message).split())
+    sys.stderr.write(f"clutt3r: error: {line}\n")
+    sys.stderr.flush()
+
+
 def main(argv: list[str] | None = None) -> None:
+    args, debug = _debug_requested(list(sys.argv[1:] if argv is None else argv))
+    _quiet_third_party()
     import tyro
 
-    cmds = available_commands()
-    tyro.extras.subcommand_cli_from_dict(
-        cmds,
-        prog="clutt3r",
-        description="Clutt3R: zero-shot 3D instance segmentation of cluttered tabletops.",
-        args=sys.argv[1:] if argv is None else argv,
-        sort_subcommands=False,
-    )
+    from clutt3r_core.errors import Clutt3rError
+
+    try:
+        cmds = available_commands()
+        tyro.extras.subcommand_cli_from_dict(
+            cmds,
+            prog="clutt3r",
+            description="Clutt3R: zero-shot 3D instance segmentation of cluttered tabletops. "
+            f"Errors print one line; add {DEBUG_FLAG} (or set {DEBUG_ENV}=1) for the traceback.",
+            args=args,
+            sort_subcommands=False,
+        )
+    except Clutt3rError as e:
+        if debug:
+            import traceback
+
+            traceback.print_exc()
+        _fail(str(e))
+        sys.exit(USER_ERROR_STATUS)
+    except OSError as e:
+        # a path the user gave that cannot be read or written (permissions, full disk, a
+        # file where a folder is expected): name it; an OSError without a path is a bug
+        if e.filename is None:
+            raise
+        if debug:
+            import traceback
+
+            traceback.print_exc()
+        _fail(f"{e.filename}: {e.strerror or e}")
+        sys.exit(USER_ERROR_STATUS)
+    except KeyboardInterrupt:
+        if debug:
+            raise
+        _fail("interrupted")
+        sys.exit(130)
 
 
 if __name__ == "__main__":

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from clutt3r_core.config import PRESETS, SegmentConfig, _paper_literal  # noqa: F401  (re-exported)
+from clutt3r_core.diagnostics import RunWarning, check_usable_depth, view_warnings
 from clutt3r_core.embeddings import MaskEmbedder, create_embedder
 from clutt3r_core.errors import SceneError
 from clutt3r_core.occupancy import mask_occupancy, mask_voxel_hits
@@ -60,6 +61,8 @@ class Segmentation:
         sv_support: (Ks,) bool support flag per super-voxel.
         trace: every intermediate (segmentation/trace.py).
         scene_name: name of the scene.
+        warnings: what degraded the input (``diagnostics.RunWarning``): the loader's and the
+            view checks'; recorded in run.json.
     """
 
     points: np.ndarray
@@ -72,8 +75,12 @@ class Segmentation:
     sv_support: np.ndarray
     trace: Trace
     scene_name: str = ""
+    warnings: tuple[RunWarning, ...] = ()
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "warnings", tuple(self.warnings))
+        if not all(isinstance(w, RunWarning) for w in self.warnings):
+            raise SceneError("Segmentation.warnings must hold diagnostics.RunWarning values")
         n = self.points.shape[0]
         if self.points.shape != (n, 3) or self.colors.shape != (n, 3) or self.instance.shape != (n,):
             raise SceneError("Segmentation: points (N,3), colors (N,3) and instance (N,) must agree")
@@ -106,7 +113,8 @@ def segment(
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=6, desc=f"segment {scene.name}", unit="stage", leave=False)
+        # disable=None: no bar when stderr is not a terminal (a log file gets no bar fragments)
+        bar = tqdm(total=6, desc=f"segment {scene.name}", unit="stage", leave=False, disable=None)
         bar.set_postfix_str("pointcloud")
 
     def tick(next_stage: str) -> None:
@@ -116,6 +124,14 @@ def segment(
 
     with timer("pointcloud"):
         cloud = fuse_views(views, config.pointcloud)
+    try:
+        check_usable_depth(views, cloud, config.pointcloud)
+    except SceneError:
+        if bar is not None:  # clear the bar before the error is printed, not after it
+            bar.close()
+        raise
+    # the loader's own (e.g. a frame demoted to post-interaction), then what the fusion shows
+    warnings = tuple(scene.warnings) + view_warnings(views, cloud, config.pointcloud)
     tick("supervoxels")
     with timer("supervoxels"):
         sv = build_supervoxels(cloud, config.supervoxels)
@@ -190,6 +206,7 @@ def segment(
         sv_support=sv.support,
         trace=trace,
         scene_name=scene.name,
+        warnings=warnings,
     )
 
 

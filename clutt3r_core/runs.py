@@ -5,7 +5,8 @@
     instance_tree.json   the grouping in the original release's schema (schema_version 1)
     cloud.npz            normals, voxel counts, super-voxel labels and support flags
     trace/               trace.npz + trace.json (every intermediate, see segmentation/trace.py)
-    run.json             scene name, the scene folder it was made from, the tool version
+    run.json             scene name, the scene folder it was made from, the tool version, and
+                         the run's warnings ([{code, frame, view, message}], diagnostics.RunWarning)
     overview.png         (CLI only) instances splatted into up to four views
 
 The scene folder is recorded relative to the run folder when a relative path exists
@@ -17,12 +18,14 @@ from __future__ import annotations
 
 import json
 import os
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from clutt3r_core.errors import SceneFileError
+from clutt3r_core.diagnostics import RunWarning
+from clutt3r_core.errors import SceneError, SceneFileError
 from clutt3r_core.io.images import atomic_write_bytes, atomic_write_npz
 
 __all__ = [
@@ -65,11 +68,14 @@ class RunInfo:
         scene_name: name of the segmented scene ("" if unknown).
         scene: the scene folder as recorded (relative to the run folder, or absolute), None if none.
         created_by: the clutt3r version that wrote the run ("" for runs older than this field).
+        warnings: what degraded the run's input (``diagnostics.RunWarning``, e.g. a frame demoted to
+            post-interaction, a view without usable depth); empty for runs older than this field.
     """
 
     scene_name: str = ""
     scene: Path | None = None
     created_by: str = ""
+    warnings: tuple[RunWarning, ...] = ()
 
 
 def _version() -> str:
@@ -101,7 +107,8 @@ def save_run(seg, out: str | Path, scene_root: str | Path | None = None) -> Path
     atomic_write_bytes(out / "instances.ply", _ply_bytes(seg.points, seg.colors, seg.instance))
     atomic_write_bytes(out / "instance_tree.json", json.dumps(instance_tree_json(seg), indent=1).encode())
     save_trace(seg.trace, out / "trace")
-    info = {"scene_name": seg.scene_name, "scene": None, "created_by": _version()}
+    info = {"scene_name": seg.scene_name, "scene": None, "created_by": _version(),
+            "warnings": [w.to_json() for w in seg.warnings]}
     if scene_root is not None:
         scene_abs = Path(scene_root).resolve()
         try:
@@ -121,21 +128,28 @@ def load_run(folder: str | Path):
     missing = missing_run_file(folder)
     if missing is not None:
         raise SceneFileError(missing, "missing: not a clutt3r run folder")
+    info = read_run_info(folder)
     try:
         with np.load(folder / "instances.npz") as f:
             a = dict(f)
         with np.load(folder / "cloud.npz") as f:
             c = dict(f)
-    except (OSError, ValueError) as e:
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
         raise SceneFileError(folder, f"unreadable run arrays: {e}") from None
     try:
         return Segmentation(
             points=a["points"], colors=a["colors"], normals=c["normals"], counts=c["counts"],
             instance=a["instance"], scores=a["scores"], sv_labels=c["sv_labels"], sv_support=c["sv_support"],
-            trace=load_trace(folder / "trace"), scene_name=read_run_info(folder).scene_name,
+            trace=load_trace(folder / "trace"), scene_name=info.scene_name, warnings=info.warnings,
         )
     except KeyError as e:
         raise SceneFileError(folder, f"run arrays lack {e}") from None
+    except SceneFileError:
+        raise
+    except (TypeError, IndexError, AttributeError) as e:  # a trace.json edited or cut short by hand
+        raise SceneFileError(folder / "trace", f"damaged trace: {type(e).__name__}: {e}") from None
+    except SceneError as e:  # arrays of the wrong shape: a damaged or hand-edited run
+        raise SceneFileError(folder, f"inconsistent run arrays: {e}") from None
 
 
 def read_run_info(folder: str | Path) -> RunInfo:
@@ -152,7 +166,14 @@ def read_run_info(folder: str | Path) -> RunInfo:
     name, scene, by = d.get("scene_name", ""), d.get("scene"), d.get("created_by", "")
     if not isinstance(name, str) or not isinstance(by, str) or not (scene is None or isinstance(scene, str)):
         raise SceneFileError(path, "scene_name, scene and created_by must be strings (scene may be null)")
-    return RunInfo(scene_name=name, scene=None if scene is None else Path(scene), created_by=by)
+    raw = d.get("warnings", [])
+    if not isinstance(raw, list):
+        raise SceneFileError(path, "'warnings' must be a list")
+    try:
+        warnings = tuple(RunWarning.from_json(w) for w in raw)
+    except SceneError as e:
+        raise SceneFileError(path, f"bad entry in 'warnings': {e}") from None
+    return RunInfo(scene_name=name, scene=None if scene is None else Path(scene), created_by=by, warnings=warnings)
 
 
 def run_scene_folder(run_dir: str | Path) -> Path | None:

@@ -326,6 +326,8 @@ class Scene:
         ground_truth: optional ground truth (synthetic scenes, BOP scenes).
         name: scene name.
         root: the folder it was loaded from, if any.
+        warnings: what the loader had to guess or work around (``diagnostics.RunWarning``),
+            e.g. a frame taken as post-interaction because its depth file is missing.
     """
 
     views: tuple[View, ...]
@@ -334,12 +336,14 @@ class Scene:
     ground_truth: GroundTruth | None = None
     name: str = ""
     root: Path | None = None
+    warnings: tuple = ()
 
     def __post_init__(self) -> None:
         views = tuple(self.views)
         object.__setattr__(self, "views", views)
         object.__setattr__(self, "initial", tuple(int(i) for i in self.initial))
         object.__setattr__(self, "post", tuple(int(i) for i in self.post))
+        object.__setattr__(self, "warnings", tuple(self.warnings))
         frames = [v.frame for v in views]
         if len(set(frames)) != len(frames):
             raise SceneError(f"{self.name or 'scene'}: duplicate frame indices {frames}")

@@ -34,6 +34,7 @@ def segment_command(
             generated ones are written to OUT/instance_masks/ and named in OUT/run.json.
     """
     from rich.console import Console
+    from rich.markup import escape
 
     from clutt3r_core.commands.masks import prepare_masks, record_run_masks
     from clutt3r_core.io import load_scene
@@ -53,6 +54,8 @@ def segment_command(
     save_run(seg, out, scene_root=sc.root if sc.root is not None else scene)
     record_run_masks(out, sc, mask_generator)
     write_png(Path(out) / "overview.png", overview_sheet(seg.points, seg.instance, sc))
+    for w in seg.warnings:  # also in OUT/run.json; soft_wrap: one line each, however narrow the terminal
+        console.print(f"[yellow]warning:[/] {escape(w.message)}", soft_wrap=True, highlight=False)
     t = seg.trace
     console.print(
         f"[bold]{sc.name}[/]: {seg.num_instances} instances from {int(t.nodes.is_leaf.sum())} leaves "

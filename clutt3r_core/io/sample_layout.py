@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from clutt3r_core.diagnostics import RunWarning
 from clutt3r_core.errors import SceneError, SceneFileError
 from clutt3r_core.io.images import (
     atomic_write_bytes,
@@ -180,6 +181,7 @@ def load_sample_layout(root: str | Path, *, load_masks: bool = True, load_gt: bo
     for f, _, d, _ in entries:
         if f in initial_frames and not has_depth[f]:
             raise SceneFileError(d or tpath, f"initial frame {f} has no depth file")
+    warnings = _demotion_warnings(root, entries, post_frames) if roles_src is None else ()
 
     masks_by_frame: dict[int, list[tuple[int, Path]]] = {}
     mask_dir = root / "instance_masks"
@@ -221,7 +223,33 @@ def load_sample_layout(root: str | Path, *, load_masks: bool = True, load_gt: bo
         ground_truth=gt,
         name=name,
         root=root,
+        warnings=warnings,
     )
+
+
+def _demotion_warnings(root: Path, entries: list[tuple], post_frames: list[int]) -> tuple[RunWarning, ...]:
+    """One warning per frame that role inference made post-interaction (issue 14: it was silent).
+
+    Without clutt3r_scene.json or instance_tree.json a frame without depth is taken as
+    post-interaction; a depth file deleted or misnamed by accident would otherwise just
+    shrink the segmentation by one view without a word.
+    """
+    out = []
+    post = set(post_frames)
+    for frame, ipath, dpath, _ in entries:
+        if frame not in post:
+            continue
+        if dpath is None:
+            why = "transforms.json gives it no depth_file_path"
+        else:
+            rel = dpath.relative_to(root) if dpath.is_relative_to(root) else dpath
+            why = f"its depth file {rel} is missing"
+        out.append(RunWarning(
+            "frame-demoted",
+            f"frame {frame} ({ipath.name}): {why}, so it was taken as a post-interaction frame and is not "
+            "segmented (list the frames in clutt3r_scene.json to make the roles explicit)",
+            frame, ipath.name))
+    return tuple(out)
 
 
 def _load_gt(root: Path, views: list[View]) -> GroundTruth:

@@ -23,7 +23,9 @@ __all__ = ["check_views", "background_masks"]
 def check_views(scene: Scene) -> None:
     """Raise ``SceneError`` unless every initial view of ``scene`` has depth and mask candidates."""
     if not scene.initial:
-        raise SceneError(f"{scene.name or 'scene'}: no initial views to segment")
+        demoted = [w.frame for w in scene.warnings if w.code == "frame-demoted"]
+        why = f" (frames {demoted} have no depth file, so they were taken as post-interaction)" if demoted else ""
+        raise SceneError(f"{scene.name or 'scene'}: no initial views to segment{why}")
     for v in scene.initial_views:
         if v.depth is None:
             raise SceneError(f"{v.name or v.frame}: initial view has no depth")
