@@ -197,6 +197,7 @@ def _estimate_normals(points: np.ndarray, knn: int) -> np.ndarray:
         return np.tile([0.0, 0.0, 1.0], (n, 1))
     import open3d as o3d
 
+    o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)  # its warnings are not the user's concern
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points.astype(np.float64)))
     pcd.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(knn=min(knn, n)))
     nrm = np.asarray(pcd.normals)
