@@ -23,10 +23,15 @@ Rules, in order (each instance takes at most one mask and each mask at most one 
 4. Parent upgrade (ours): an instance matched to a leaf takes the leaf's parent instead when
    every other descendant leaf of that parent is residual and the parent's S_spatial is higher
    (the leaf was an over-segmented part of a static object; its whole mask is the parent).
-5. An unmatched instance is ``occluded`` when it projects outside the image or its visible
-   projection keeps less than ``hidden_fraction`` of its own unoccluded projection, or (with
-   new depth) when most of its visible projection is covered by something ``nearer_margin``
-   in front of it; otherwise it is ``removed`` (its place is visible and it is not there).
+5. An unmatched instance is ``occluded`` when its own projection is under ``min_area_px``
+   (outside the image, or too small to judge) or its visible projection keeps less than
+   ``hidden_fraction`` of it, or (with new depth) when most of its visible projection is
+   covered by something ``nearer_margin`` in front of it. It is ``static`` (ours: present, its
+   mask is missing or merged into a neighbour's, which Grounded-SAM-like detectors do) when
+   the new view still shows it where it was: with depth, ``presence_fraction`` of its visible
+   pixels within ``presence_depth_tol`` of the stored depth; without depth, of its visible
+   pixels within ``presence_color_tol`` of the stored colour. Otherwise it is ``removed``
+   (its place is visible and it is not there).
 6. Unmatched masks (leaves, and parents that replaced residual leaves) are ``new`` unless
    they lie at least ``part_fraction`` inside a matched mask (a part of a matched instance).
 """
@@ -55,6 +60,7 @@ class Projection:
         depth: (H, W) float32 camera z of that point, inf where none.
         own_area: (K,) int64 pixels of each instance's projection alone (no occluders), in the image.
         visible_area: (K,) int64 pixels each instance wins in ``label``.
+        color: (H, W, 3) uint8 stored colour of the winning point (0 where none), or None.
     """
 
     ids: np.ndarray
@@ -62,20 +68,27 @@ class Projection:
     depth: np.ndarray
     own_area: np.ndarray
     visible_area: np.ndarray
+    color: np.ndarray | None = None
 
     def visible(self, k: int) -> np.ndarray:
         return self.label == k
 
 
 def project_instances(points: np.ndarray, instance: np.ndarray, ids: np.ndarray, camera, voxel: float,
-                      scale: float = 1.0) -> Projection:
-    """Z-buffer the points of instances ``ids`` (other points are ignored)."""
+                      scale: float = 1.0, colors: np.ndarray | None = None) -> Projection:
+    """Z-buffer the points of instances ``ids`` (other points are ignored); ``colors`` (N, 3)
+    uint8 also gives the colour of the winning point per pixel."""
     H, W = camera.height, camera.width
     sel = np.isin(instance, ids)
     s = splat(points[sel], camera, voxel, scale)
     label = np.full((H, W), -1, np.int32)
     depth = np.full((H, W), np.inf, np.float32)
+    color = None if colors is None else np.zeros((H, W, 3), np.uint8)
     if s.h and s.w:
+        if colors is not None:
+            win = np.where(s.point >= 0, s.point, 0)
+            color[s.v0 : s.v0 + s.h, s.u0 : s.u0 + s.w] = np.where((s.point >= 0)[..., None],
+                                                                   np.asarray(colors)[sel][win], 0)
         lab_sel = instance[sel]
         s_lab = np.where(s.point >= 0, lab_sel[np.maximum(s.point, 0)], -1)
         label[s.v0 : s.v0 + s.h, s.u0 : s.u0 + s.w] = s_lab
@@ -85,7 +98,7 @@ def project_instances(points: np.ndarray, instance: np.ndarray, ids: np.ndarray,
         sk = splat(points[instance == k], camera, voxel, scale)
         own[i] = int(np.isfinite(sk.zbuf).sum()) if sk.h and sk.w else 0
     vis = np.array([int(np.count_nonzero(label == k)) for k in ids], np.int64)
-    return Projection(np.asarray(ids, np.int32), label, depth, own, vis)
+    return Projection(np.asarray(ids, np.int32), label, depth, own, vis, color)
 
 
 @dataclass(frozen=True, eq=False)
@@ -156,7 +169,7 @@ def associate(
     lut = np.full(int(ids.max()) + 2 if K else 1, K, np.int64)
     lut[ids] = np.arange(K)
     lab_idx = np.where(flat_lab >= 0, lut[np.maximum(flat_lab, 0)], K)
-    areas = masks.areas()
+    areas = np.count_nonzero(masks.masks, axis=(1, 2)).astype(np.int64)  # (MaskCandidates.areas fails for M = 0)
     s_spat = np.zeros((M, K), np.float32)
     for m in range(M):
         inter = np.bincount(lab_idx[masks.masks[m].reshape(-1)], minlength=K + 1)[:K]
@@ -207,21 +220,33 @@ def associate(
             how[k] = "parent-upgrade"
             taken.add(p)
             consumed |= others
-    # rule 5: unmatched instances
+    # rule 5: unmatched instances: hidden -> occluded; still there -> static; else removed
     status = [""] * K
     depth = view.depth
     for k in range(K):
         if matched_node[k] >= 0:
             continue
         own, vis = proj.own_area[k], proj.visible_area[k]
-        hidden = own == 0 or vis < cfg.hidden_fraction * own
-        if not hidden and depth is not None and stored_depth_check:
-            sel = proj.label == ids[k]
-            d = depth[sel]
+        if own < cfg.min_area_px or vis < cfg.hidden_fraction * own:
+            status[k] = "occluded"
+            continue
+        sel = proj.label == ids[k]
+        if depth is not None:
+            d, z = depth[sel], proj.depth[sel]
             ok = np.isfinite(d)
-            if ok.sum() > 0:
-                hidden = np.mean(d[ok] < proj.depth[sel][ok] - cfg.nearer_margin) > 0.5
-        status[k] = "occluded" if hidden else "removed"
+            if ok.sum() >= cfg.min_area_px:
+                if np.mean(d[ok] < z[ok] - cfg.nearer_margin) > 0.5:
+                    status[k] = "occluded"
+                    continue
+                if np.mean(np.abs(d[ok] - z[ok]) <= cfg.presence_depth_tol) >= cfg.presence_fraction:
+                    status[k], how[k] = "static", "present-depth"
+                    continue
+        elif proj.color is not None:
+            diff = np.abs(view.rgb[sel].astype(np.int32) - proj.color[sel].astype(np.int32)).mean(axis=1)
+            if np.mean(diff <= cfg.presence_color_tol) >= cfg.presence_fraction:
+                status[k], how[k] = "static", "present-colour"
+                continue
+        status[k] = "removed"
     # rule 6: new masks
     taken = set(int(x) for x in matched_node if x >= 0)
     matched_union = np.zeros(masks.shape, bool)
@@ -235,5 +260,6 @@ def associate(
         if a and np.count_nonzero(masks.masks[mi] & matched_union) >= cfg.part_fraction * a:
             continue
         new.append(mi)
-    mask_index = np.where(matched_node >= 0, node_mask[np.maximum(matched_node, 0)], -1)
+    mask_index = np.full(K, -1, np.int64)
+    mask_index[matched_node >= 0] = node_mask[matched_node[matched_node >= 0]]
     return Association(tree, ids, mask_index.astype(np.int64), tuple(how), tuple(status), tuple(new), s_spat, s_sem)

@@ -8,6 +8,9 @@ Parameterisation (``PoseConfig.dof``):
   decoupled (a turn in place does not move the centroid), and t_z is directly the vertical
   motion that L_reg,z penalises.
 - ``yaw``: w = (0, 0, theta): a turn about the world z axis through c, plus t (4 DoF).
+- ``yaw-then-se3`` (default): the coarse stage in yaw + t, the fine stage in full SE(3).
+  Roll and pitch are poorly observed from a silhouette and drift during the coarse search
+  (measured in docs/update.md); objects pushed on a table turn mostly about the vertical.
 
 Objective (eq. 6): ``L = l_chamfer L_chamfer + l_photo L_photo + l_reg,z L_reg,z (+ l_depth L_depth)``
 
@@ -129,7 +132,9 @@ class _Solver:
         vs, us = np.nonzero(edge)
         step = max(1, int(np.ceil(len(us) / cfg.max_contour)))
         self.C = torch.tensor(np.stack([us[::step], vs[::step]], axis=1).astype(np.float64))
-        self.z_axis = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
+        self.yaw_mask = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
+        self.full_mask = torch.ones(3, dtype=torch.float64)
+        self.rot_mask = self.full_mask if cfg.dof == "se3" else self.yaw_mask
 
     # -- geometry ------------------------------------------------------------------------
     def rotation(self, w):
@@ -146,7 +151,9 @@ class _Solver:
                 + (1 - torch.cos(theta)) / theta2 * (Kx @ Kx))
 
     def rotvec(self, params):
-        return params["yaw"] * self.z_axis if self.cfg.dof == "yaw" else params["w"]
+        # the mask of the running stage zeroes roll and pitch in the yaw stages (their Adam
+        # state then stays at zero, so the SE(3) fine stage starts from the yaw result)
+        return params["w"] * self.rot_mask
 
     def matrix(self, params) -> np.ndarray:
         with self.torch.no_grad():
@@ -219,18 +226,15 @@ class _Solver:
     def new_params(self, yaw0: float, t0: np.ndarray):
         torch = self.torch
         t = torch.tensor(t0, dtype=torch.float64, requires_grad=True)
-        if self.cfg.dof == "yaw":
-            r = torch.tensor(yaw0, dtype=torch.float64, requires_grad=True)
-            params = {"yaw": r, "t": t}
-        else:
-            r = torch.tensor([0.0, 0.0, yaw0], dtype=torch.float64, requires_grad=True)
-            params = {"w": r, "t": t}
+        r = torch.tensor([0.0, 0.0, yaw0], dtype=torch.float64, requires_grad=True)
+        params = {"w": r, "t": t}
         opt = torch.optim.Adam([{"params": [r], "lr": self.cfg.lr_rotation},
                                 {"params": [t], "lr": self.cfg.lr_translation}])
         return params, opt
 
     def steps(self, params, opt, stage: StageConfig, stage_id: int, n: int, log: list, decay: bool = True) -> None:
-        base = [self.cfg.lr_rotation, self.cfg.lr_translation]
+        scale = 1.0 if stage_id == 0 else self.cfg.fine_lr_scale
+        base = [self.cfg.lr_rotation * scale, self.cfg.lr_translation * scale]
         for i in range(n):
             # exponential decay to 10 % over the stage (ours): large steps to travel, small to settle
             f = 0.1 ** (i / max(n - 1, 1)) if decay else 1.0
@@ -268,6 +272,8 @@ class _Solver:
         stages = 1
         if not (cfg.early_exit and log[-1][3] >= cfg.tau_iou) and cfg.fine.iterations > 0:
             stages = 2
+            if cfg.dof == "yaw-then-se3":
+                self.rot_mask = self.full_mask
             self.steps(params, opt, cfg.fine, 1, cfg.fine.iterations, log)
             self.final(params, cfg.fine, 1, log)
         trace = PoseTrace(

@@ -71,9 +71,10 @@ class PoseConfig:
     """Sec. IV tau_IoU: the coarse stage ends the optimisation when its IoU reaches this."""
     early_exit: bool = True
     """Sec. III-C: skip the fine stage when the coarse IoU >= tau_iou. False always refines (ours)."""
-    dof: Literal["se3", "yaw"] = "se3"
+    dof: Literal["se3", "yaw", "yaw-then-se3"] = "yaw-then-se3"
     """se3: axis-angle rotation about the instance centroid + translation (6 DoF);
-    yaw: rotation about the world z axis through the centroid + translation (4 DoF)."""
+    yaw: rotation about the world z axis through the centroid + translation (4 DoF);
+    yaw-then-se3 (ours, default): yaw + t in the coarse stage, SE(3) in the fine stage."""
     lambda_depth: float = 1.0
     """Ours: weight of the depth term (Huber of point z vs the new depth, in cm) used only when
     the new view has depth ("use the new depth when it exists", issue 10)."""
@@ -85,6 +86,9 @@ class PoseConfig:
     """Ours: Adam step on the rotation vector, radians."""
     lr_translation: float = 0.004
     """Ours: Adam step on the translation, metres."""
+    fine_lr_scale: float = 0.25
+    """Ours: the fine stage refines, with the step sizes scaled by this (full steps there let
+    roll and pitch wander: measured in docs/update.md)."""
     yaw_starts_deg: tuple[float, ...] = (0.0, 40.0, -40.0, 80.0, -80.0, 180.0)
     """Ours: initial yaw hypotheses; each runs ``probe_iterations`` coarse steps and the best
     (lowest coarse loss) continues. The push of a neighbour turns it 20-60 deg, more than a
@@ -100,8 +104,8 @@ class PoseConfig:
     def __post_init__(self) -> None:
         if not 0.0 < self.tau_iou <= 1.0:
             raise SceneError(f"PoseConfig.tau_iou must be in (0, 1], got {self.tau_iou}")
-        if self.dof not in ("se3", "yaw"):
-            raise SceneError(f"PoseConfig.dof must be 'se3' or 'yaw', got {self.dof!r}")
+        if self.dof not in ("se3", "yaw", "yaw-then-se3"):
+            raise SceneError(f"PoseConfig.dof must be 'se3', 'yaw' or 'yaw-then-se3', got {self.dof!r}")
         if self.coarse.iterations < 0 or self.fine.iterations < 0 or self.probe_iterations < 0:
             raise SceneError("PoseConfig: iteration counts must be >= 0")
         if not self.yaw_starts_deg:
@@ -124,6 +128,17 @@ class AssociationConfig:
     nearer_margin: float = 0.02
     """Ours, with new depth only: a pixel of an unmatched instance's projection is covered by
     something in front when the new depth is this much (m) nearer than the stored point."""
+    min_area_px: int = 50
+    """Ours: an unmatched instance projecting to fewer pixels than this (alone) is not judged:
+    occluded (run fragments of a few points and objects outside the view)."""
+    presence_fraction: float = 0.5
+    """Ours: fraction of an unmatched instance's visible pixels that must still agree with the
+    stored points for it to count as present (static), see rule 5 of associate.py."""
+    presence_depth_tol: float = 0.02
+    """Ours, metres: new depth within this of the stored point's depth agrees."""
+    presence_color_tol: float = 30.0
+    """Ours, 0-255 mean absolute RGB difference: a pixel's colour agrees with the stored colour
+    (no-depth views only)."""
     part_fraction: float = 0.5
     """Ours: an unmatched mask lying at least this fraction inside a matched mask is a part of
     that instance (over-segmentation), not a new object."""

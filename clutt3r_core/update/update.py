@@ -83,7 +83,7 @@ def update_scene(
 
     tree = build_instance_tree(masks, view.frame)
     mask_emb = embedder.embed_masks(view.rgb, masks.masks) if len(masks) else np.zeros((0, state.embeddings.shape[1]))
-    proj_all = project_instances(state.points, state.instance, ids, cam, voxel, scale)
+    proj_all = project_instances(state.points, state.instance, ids, cam, voxel, scale, colors=state.colors)
     assoc = associate(view, proj_all, state.embeddings, mask_emb, config.association, tree=tree)
     if details is not None:
         details.association, details.projection = assoc, proj_all
@@ -118,7 +118,7 @@ def update_scene(
         k = int(k)
         mi = int(assoc.mask_index[i])
         mid = int(masks.ids[mi]) if mi >= 0 else -1
-        if k in status:
+        if k in status:  # unmatched: removed, occluded, or present without a mask of its own (static)
             records.append(InstanceUpdate(k, status[k], None, None, None, mid, assoc.match[i]))
         elif k not in displaced:
             records.append(InstanceUpdate(k, "static", iou[k], iou[k], None, mid, assoc.match[i]))
@@ -134,7 +134,7 @@ def update_scene(
             else:
                 records.append(InstanceUpdate(k, "displaced", iou[k], res.iou_after, res.T_world, mid,
                                               assoc.match[i], pose=res))
-    new = tuple(NewMask(int(masks.ids[mi]), int(masks.areas()[mi])) for mi in assoc.new_masks)
+    new = tuple(NewMask(int(masks.ids[mi]), int(np.count_nonzero(masks.masks[mi]))) for mi in assoc.new_masks)
     change = np.zeros((len(ids), *masks.shape), bool)
     for i, k in enumerate(ids):
         if int(k) in new_mask:

@@ -1,0 +1,90 @@
+"""Tiny synthetic stored scenes and their post-interaction views for the update tests.
+
+Objects are textured boxes sampled at 5 mm on their surface (no bottom face), resting on
+the table (z = 0); a view is rendered by z-buffering the points themselves (the same
+splats the update uses), so a known motion gives an exact target mask and image.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from clutt3r_core.scene import Camera, MaskCandidates, View
+from clutt3r_core.update.project import render_labels
+
+VOXEL = 0.005
+
+
+def look_at(eye, target=(0.0, 0.0, 0.03), up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    eye, target, up = (np.asarray(x, float) for x in (eye, target, up))
+    z = target - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, up)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    T = np.eye(4)
+    T[:3, :3] = np.stack([x, y, z], axis=1)
+    T[:3, 3] = eye
+    return T
+
+
+def camera(eye=(0.0, -0.45, 0.4), target=(0.0, 0.0, 0.03), width=200, height=150, f=220.0) -> Camera:
+    K = np.array([[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1.0]])
+    return Camera(K, width, height, look_at(eye, target))
+
+
+def box_points(center, size, colors, seed=0) -> tuple[np.ndarray, np.ndarray]:
+    """Surface points (5 mm grid) of an axis-aligned box standing on z = center_z - size_z/2,
+    each face its own colour (colors: (5, 3) uint8 for +x, -x, +y, -y, +z), with a dark stripe."""
+    c, s = np.asarray(center, float), np.asarray(size, float)
+    pts, cols = [], []
+    g = lambda n: np.linspace(-0.5, 0.5, max(2, int(round(n / VOXEL)) + 1))  # noqa: E731
+    faces = [(0, 1), (0, -1), (1, 1), (1, -1), (2, 1)]
+    for fi, (ax, sign) in enumerate(faces):
+        o = [a for a in range(3) if a != ax]
+        A, B = np.meshgrid(g(s[o[0]]), g(s[o[1]]), indexing="ij")
+        p = np.zeros((A.size, 3))
+        p[:, ax] = 0.5 * sign
+        p[:, o[0]], p[:, o[1]] = A.ravel(), B.ravel()
+        pts.append(c + p * s)
+        col = np.tile(np.asarray(colors[fi], np.uint8), (A.size, 1))
+        stripe = np.abs(A.ravel() - 0.15) < 0.1
+        col[stripe] = (col[stripe] * 0.3).astype(np.uint8)
+        cols.append(col)
+    return np.concatenate(pts).astype(np.float32), np.concatenate(cols)
+
+
+def yaw_motion(yaw_deg: float, t, center) -> np.ndarray:
+    """World motion: turn by yaw about the vertical axis through ``center``, then translate by t."""
+    a = np.deg2rad(yaw_deg)
+    R = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1.0]])
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = np.asarray(center) + np.asarray(t) - R @ np.asarray(center)
+    return T
+
+
+def two_box_scene():
+    """Two boxes (instances 0 and 1): points, colours, instance labels."""
+    p0, c0 = box_points((-0.06, 0.0, 0.03), (0.06, 0.04, 0.06),
+                        [(200, 40, 40), (180, 30, 30), (220, 120, 40), (150, 20, 60), (240, 200, 60)])
+    p1, c1 = box_points((0.07, 0.03, 0.025), (0.05, 0.05, 0.05),
+                        [(40, 60, 200), (30, 160, 200), (40, 200, 90), (20, 90, 150), (120, 220, 240)])
+    pts = np.concatenate([p0, p1])
+    cols = np.concatenate([c0, c1])
+    inst = np.concatenate([np.zeros(len(p0), np.int32), np.ones(len(p1), np.int32)])
+    return pts, cols, inst
+
+
+def render_view(points, colors, inst, cam: Camera, frame=9, with_depth=True, background=(90, 90, 90)) -> View:
+    """RGB, depth and one exact mask per visible instance (ids = instance + 1)."""
+    lab, z = render_labels(points, np.arange(len(points)), cam, VOXEL)
+    rgb = np.tile(np.asarray(background, np.uint8), (cam.height, cam.width, 1))
+    hit = lab >= 0
+    rgb[hit] = colors[lab[hit]]
+    ids = np.where(hit, inst[np.where(hit, lab, 0)], -1)
+    present = [k for k in np.unique(ids) if k >= 0]
+    masks = MaskCandidates(np.stack([ids == k for k in present]) if present else np.zeros((0, cam.height, cam.width), bool),
+                           np.array([k + 1 for k in present], np.int32))
+    depth = np.where(hit, z, np.nan).astype(np.float32) if with_depth else None
+    return View(frame=frame, rgb=rgb, camera=cam, depth=depth, masks=masks)
