@@ -84,6 +84,12 @@ class AntipodalConfig:
     """Contacts are sampled only where the normals of the 8 nearest target points agree with the
     point's own within this mean angle: the PCA normals of edges and corners average two faces
     and would pair edge to opposite edge across a diagonal (measured on a box: mu 0.7-1.7)."""
+    relaxed_angle_deg: float = 40.0
+    """When the strict pass finds fewer than ``max_pairs / 4`` pairs, a second pass without the
+    smoothness filter admits pairs up to this angle (both gates). On thin and flat objects (a
+    marker, a wrench, a sponge lying down) the 5 mm PCA normals of the narrow sides lean towards
+    the top face by 30-45 deg, so the strict pass finds nothing; these pairs score 0 on
+    antipodality and rank below every strict pair."""
     line_angle_deg: float = 30.0
     """Largest angle between the line p -> q and either inward normal (the contacts must face each
     other across the object; looser than ``pair_angle_deg`` since the axis comes from the normals)."""
@@ -147,7 +153,8 @@ class AntipodalConfig:
             "max_first_contacts": self.max_first_contacts >= 1, "max_second_contacts": self.max_second_contacts >= 1,
             "pair_angle_deg": 0 < self.pair_angle_deg < 90,
             "line_angle_deg": 0 < self.line_angle_deg < 90,
-            "max_normal_spread_deg": 0 < self.max_normal_spread_deg <= 180, "min_pair_distance": self.min_pair_distance >= 0,
+            "max_normal_spread_deg": 0 < self.max_normal_spread_deg <= 180,
+            "relaxed_angle_deg": 0 < self.relaxed_angle_deg < 90, "min_pair_distance": self.min_pair_distance >= 0,
             "finger_margin": self.finger_margin >= 0, "min_finger_margin": 0 <= self.min_finger_margin,
             "max_pairs": self.max_pairs >= 1, "approach_steps": self.approach_steps >= 1,
             "collision_pad": self.collision_pad >= 0, "grid_cell": self.grid_cell > 0,
@@ -278,11 +285,13 @@ def _smooth_points(tp: np.ndarray, tn: np.ndarray, max_spread_deg: float, k: int
     return mean_cos >= np.cos(np.radians(max_spread_deg))
 
 
-def _pairs(tp: np.ndarray, tn: np.ndarray, cfg: AntipodalConfig, rng: np.random.Generator):
+def _pairs(tp: np.ndarray, tn: np.ndarray, cfg: AntipodalConfig, rng: np.random.Generator, relaxed: bool = False):
     """Antipodal contact pairs (p (P,3), q (P,3), closing axis (P,3), quality cos (P,)), best first,
     one per 1 cm centre cell and closing-axis bin."""
     g = cfg.gripper
-    good = _smooth_points(tp, tn, cfg.max_normal_spread_deg)
+    pair_angle = cfg.relaxed_angle_deg if relaxed else cfg.pair_angle_deg
+    line_angle = max(cfg.relaxed_angle_deg, cfg.line_angle_deg) if relaxed else cfg.line_angle_deg
+    good = np.ones(len(tp), bool) if relaxed else _smooth_points(tp, tn, cfg.max_normal_spread_deg)
     if good.sum() < 2:  # nothing smooth (a tiny or ragged segment): use every point
         good[:] = True
     cand = np.flatnonzero(good)
@@ -300,8 +309,8 @@ def _pairs(tp: np.ndarray, tn: np.ndarray, cfg: AntipodalConfig, rng: np.random.
     # convex surfaces the fingers then close along the surface normal, whatever the exact p and q
     nn = -np.einsum("pk,qk->pq", Np, Nq)  # cos of the angle between -n_p and n_q
     cos_h = np.sqrt(np.clip((1 + nn) / 2, 0, 1))  # cos of half that angle: axis vs each inward normal
-    ok = (np.minimum(cos1, cos2) >= np.cos(np.radians(cfg.line_angle_deg))) & \
-         (cos_h >= np.cos(np.radians(cfg.pair_angle_deg))) & (dist >= max(cfg.min_pair_distance, 1e-6)) & \
+    ok = (np.minimum(cos1, cos2) >= np.cos(np.radians(line_angle))) & \
+         (cos_h >= np.cos(np.radians(pair_angle))) & (dist >= max(cfg.min_pair_distance, 1e-6)) & \
          (dist <= g.max_width - 2 * cfg.min_finger_margin)
     a, b = np.nonzero(ok)
     if len(a) == 0:
@@ -339,6 +348,11 @@ def plan_antipodal(request: GraspRequest, config: AntipodalConfig = AntipodalCon
     if len(tp) < cfg.min_target_points:
         return empty(f"no grasp: the target has {len(tp)} points (at least {cfg.min_target_points} needed)", stats)
     P, Q, x, qual = _pairs(tp, tn, cfg, rng)
+    if len(P) < cfg.max_pairs // 4 and cfg.relaxed_angle_deg > cfg.pair_angle_deg:
+        # thin and flat objects: few smooth points and normals bent by the neighbouring faces
+        P2, Q2, x2, q2 = _pairs(tp, tn, cfg, rng, relaxed=True)
+        n2 = cfg.max_pairs - len(P)
+        P, Q, x, qual = (np.concatenate([a, b[:n2]]) for a, b in ((P, P2), (Q, Q2), (x, x2), (qual, q2)))
     secs["pairs"] = time.perf_counter() - t0
     stats = PlanStats(target_points=len(tp), pairs=len(P))
     if len(P) == 0:
