@@ -6,6 +6,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from clutt3r_viewer.camera import frustum_scale
 from clutt3r_viewer.data import label_colors, lod_indices
 from clutt3r_viewer.layers import available_layers
 from clutt3r_viewer.panels.base import Change, Panel, downscale_step
@@ -58,9 +59,7 @@ class ScenePanel(Panel):
         d = s.app.data
         sc = s.client.scene
         self._add_cloud(s)
-        ext = float(np.ptp(d.seg.points, axis=0).max()) if len(d.seg.points) else 1.0
-        # small frustums: their image planes sit above the pile and must not hide it
-        self.frustum_scale = float(np.clip(0.04 * ext, 0.02, 0.06))
+        self.frustum_scale = frustum_scale(d)  # the default camera keeps these out of its way
         import viser.transforms as vtf
 
         self.frustums = []
