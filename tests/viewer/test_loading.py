@@ -76,3 +76,56 @@ def test_a_scene_folder_is_segmented_in_the_background(tiny_run_dir, tiny_data):
         assert app.data.seg.num_instances > 0 and len(app.data.views) == len(tiny_data.views)
     finally:
         app.stop()
+
+
+def _run_with_recorded_scene(tiny_seg, tiny_scene, root):
+    from clutt3r_core.io import write_sample_layout
+    from clutt3r_core.runs import save_run
+
+    scene_dir = write_sample_layout(tiny_scene, root / "scenes" / "s")
+    return save_run(tiny_seg, root / "runs" / "r", scene_root=scene_dir), scene_dir
+
+
+def test_a_run_finds_the_scene_it_recorded_and_scene_overrides_it(tiny_seg, tiny_scene, tiny_run_dir, tmp_path):
+    run, scene_dir = _run_with_recorded_scene(tiny_seg, tiny_scene, tmp_path)
+    assert not (run / "viewer.json").exists()
+    assert find_scene(run).resolve() == scene_dir.resolve()
+    d = load_viewer_data(run)
+    assert len(d.views) == len(tiny_scene.initial) and d.scene_root.resolve() == scene_dir.resolve()
+    other = tiny_run_dir.parent / "scene"  # --scene wins over the record
+    assert load_viewer_data(run, other).scene_root.resolve() == other.resolve()
+    # run and scene moved together: the relative record still holds
+    import shutil
+
+    shutil.move(str(tmp_path / "runs"), str(tmp_path / "moved" / "runs"))
+    shutil.move(str(tmp_path / "scenes"), str(tmp_path / "moved" / "scenes"))
+    assert find_scene(tmp_path / "moved" / "runs" / "r").resolve() == (tmp_path / "moved" / "scenes" / "s").resolve()
+
+
+def test_a_moved_scene_is_a_clear_error_and_no_images_opens_the_run(tiny_seg, tiny_scene, tmp_path, capsys):
+    import shutil
+
+    from clutt3r_viewer.cli import view_command
+
+    run, scene_dir = _run_with_recorded_scene(tiny_seg, tiny_scene, tmp_path)
+    shutil.move(str(scene_dir), str(tmp_path / "elsewhere"))
+    with pytest.raises(SceneFileError, match="run.json") as e:
+        find_scene(run)
+    msg = str(e.value)
+    assert "scenes/s" in msg and "--scene" in msg and "--no-images" in msg
+    assert load_viewer_data(run, images=False).views == ()
+    assert len(load_viewer_data(run, tmp_path / "elsewhere").views) == len(tiny_scene.initial)
+    from tests.viewer.conftest import free_port
+
+    with pytest.raises(SystemExit) as ex:  # the CLI: one line on stderr, exit 2, no server left running
+        view_command(run, port=free_port())
+    assert ex.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("clutt3r view: ") and "run.json" in err and "Traceback" not in err
+    import clutt3r_viewer
+
+    app = clutt3r_viewer.start(run, port=free_port(), images=False)
+    try:
+        assert app.data.views == () and "--no-images" in app.no_images_text
+    finally:
+        app.stop()
