@@ -1,4 +1,14 @@
-"""The Grasps tab: grasp candidates as gripper outlines; the selected one as the gripper mesh."""
+"""The Grasps tab: plan grasps for a picked instance, draw the top N, inspect and export one.
+
+Target: the instance dropdown, the tree node selected in the Tree tab (its instance), or the
+best instance of the last text query ("Use query target"). "Plan grasps" runs the default
+``grasp_planner`` (``clutt3r_core.grasping``) on the run's fused cloud with the run's depth
+views (unseen-space check). The top N grippers are drawn as outlines at their widths,
+coloured by score; the selected one is drawn with the gripper mesh, its closing region
+(the box between the pads) and its two contacts. "Export" writes ``RUN/grasps.json`` and
+``RUN/grasps.npz`` as ``clutt3r grasp`` does. A run that already has ``grasps.npz`` opens
+with those grasps. Gripper frame: docs/conventions.md ("Gripper").
+"""
 
 from __future__ import annotations
 
@@ -6,77 +16,182 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from clutt3r_core.grasping.gripper import FRANKA
 from clutt3r_viewer.assets import gripper_mesh
 from clutt3r_viewer.data import ramp_colors
 from clutt3r_viewer.layers import HIGHLIGHT
-from clutt3r_viewer.panels.base import Panel
+from clutt3r_viewer.panels.base import Change, Panel
 
 if TYPE_CHECKING:
     import viser
 
     from clutt3r_viewer.app import Session, ViewerApp
 
-__all__ = ["GraspsPanel", "gripper_segments"]
+__all__ = ["GraspsPanel", "gripper_segments", "closing_region_segments"]
 
 
-def gripper_segments(T: np.ndarray, width: float, depth: float = 0.05) -> np.ndarray:
-    """(4, 2, 3) float32 line segments of a parallel-jaw gripper at ``T_world_gripper``.
+def _transform(local: np.ndarray, T: np.ndarray) -> np.ndarray:
+    p = local.reshape(-1, 3) @ np.asarray(T)[:3, :3].T + np.asarray(T)[:3, 3]
+    return p.reshape(local.shape).astype(np.float32)
 
-    Gripper frame: z = approach direction, x = closing direction; the fingertips are at the origin.
+
+def gripper_segments(T: np.ndarray, width: float) -> np.ndarray:
+    """(4, 2, 3) float32 line segments of the gripper at ``T_world_gripper`` (docs/conventions.md).
+
+    Origin at the grasp centre; z = approach, x = closing: palm bar, the two fingers (inner faces
+    at x = -/+ width / 2, palm face to fingertips) and the wrist along -z.
     """
     w = float(width) / 2
+    z0, z1 = FRANKA.finger_z
+    zp = FRANKA.palm_z[0]
     local = np.array([
-        [[-w, 0, 0], [w, 0, 0]],              # palm bar
-        [[-w, 0, 0], [-w, 0, depth]],         # left finger
-        [[w, 0, 0], [w, 0, depth]],           # right finger
-        [[0, 0, 0], [0, 0, -depth]],          # wrist
+        [[-w, 0, z0], [w, 0, z0]],      # palm bar at the palm's front face
+        [[-w, 0, z0], [-w, 0, z1]],     # left finger, to its tip
+        [[w, 0, z0], [w, 0, z1]],       # right finger
+        [[0, 0, z0], [0, 0, zp]],       # wrist, back to the palm's rear face
     ], np.float64)
-    local[..., 2] -= depth  # fingertips at the origin, palm behind them
-    p = local.reshape(-1, 3) @ T[:3, :3].T + T[:3, 3]
-    return p.reshape(4, 2, 3).astype(np.float32)
+    return _transform(local, T)
+
+
+def closing_region_segments(T: np.ndarray, width: float) -> np.ndarray:
+    """(12, 2, 3) float32 edges of the closing region box (between the pads) at ``T_world_gripper``."""
+    b = FRANKA.boxes(float(min(max(width, 1e-4), FRANKA.max_width)))["closing"]
+    lo, hi = b.lo, b.hi
+    c = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    edges = [(i, j) for i in range(8) for j in range(i + 1, 8) if bin(i ^ j).count("1") == 1]
+    return _transform(np.stack([c[[i, j]] for i, j in edges]), T)
 
 
 class GraspsPanel(Panel):
     tab = "Grasps"
+    target: "viser.GuiDropdownHandle[str]"
+    use_query: "viser.GuiButtonHandle"
+    top: "viser.GuiSliderHandle[int]"
+    plan: "viser.GuiButtonHandle"
     summary: "viser.GuiMarkdownHandle"
     grasp: "viser.GuiDropdownHandle[str]"
+    export: "viser.GuiButtonHandle"
     all: "viser.LineSegmentsHandle | None" = None
     selected: "viser.MeshHandle | viser.LineSegmentsHandle | None" = None
+    region: "viser.LineSegmentsHandle | None" = None
+    contacts: "viser.PointCloudHandle | None" = None
 
     @classmethod
     def available(cls, app: "ViewerApp") -> bool:
-        return app.data.grasps is not None
+        return app.data.grasps is not None or app.data.seg.num_instances > 0
 
     def build(self, s: "Session") -> None:
-        g = s.app.data.grasps
         gui = s.client.gui
-        order = np.argsort(-g.scores)
-        self.summary = gui.add_markdown(f"{len(g.scores)} grasp candidates")
-        self.grasp = gui.add_dropdown(
-            "Grasp", ["none"] + [f"{int(k)}: I{int(g.instance[k])} score {g.scores[k]:.2f}" for k in order[:50]],
-            initial_value="none")
+        seg = s.app.data.seg
+        counts = np.bincount(seg.instance[seg.instance >= 0], minlength=seg.num_instances)
+        self.target = gui.add_dropdown("Target", [f"I{k} ({int(counts[k])} pts)" for k in range(seg.num_instances)]
+                                       or ["none"], hint="instance to grasp; selecting a tree node picks its instance")
+        self.use_query = gui.add_button("Use query target", hint="the best instance of the Query tab's last query")
+        self.use_query.on_click(lambda ev: self._use_query(s))
+        self.top = gui.add_slider("Top N", min=1, max=50, step=1, initial_value=10)
+        self.plan = gui.add_button("Plan grasps")
+        self.plan.on_click(lambda ev: self.plan_for(s, _option_id(self.target.value)))
+        self.summary = gui.add_markdown("_pick a target and plan_")
+        self.grasp = gui.add_dropdown("Grasp", ["none"], initial_value="none")
         self.grasp.on_update(lambda ev: self.select_grasp(s, self.grasp.value))
-        if len(g.scores):
-            segs = np.concatenate([gripper_segments(g.poses[k], g.widths[k]) for k in range(len(g.scores))])
+        self.export = gui.add_button("Export grasps.json / grasps.npz")
+        self.export.on_click(lambda ev: self._export(s))
+        self._grasps = s.app.data.grasps
+        self._target = -1 if self._grasps is None or not len(self._grasps) else int(self._grasps.instance[0])
+        if self._grasps is not None:
+            self.summary.content = f"{len(self._grasps)} grasps from the run's grasps.npz"
+            self._draw(s)
+
+    def refresh(self, s: "Session", change: Change) -> None:
+        if change & Change.NODE and s.state.node >= 0:
+            k = int(s.app.data.node_instance[s.state.node])
+            if k >= 0:
+                self._set_target(k)
+
+    def _set_target(self, k: int) -> None:
+        for opt in self.target.options:
+            if _option_id(opt) == k:
+                self.target.value = opt
+
+    def _use_query(self, s: "Session") -> None:
+        if s.state.query_best < 0:
+            s.notify("Grasps", "run a query in the Query tab first")
+            return
+        self._set_target(int(s.state.query_best))
+
+    def plan_for(self, s: "Session", k: int) -> None:
+        """Plan grasps on instance ``k`` with the default planner and draw the top N."""
+        from clutt3r_core.grasping import DepthView
+        from clutt3r_core.grasping.request import request_from_segmentation
+        from clutt3r_core.registry import create_backend
+
+        with s.lock:
+            d = s.app.data
+            if not 0 <= k < d.seg.num_instances:
+                s.notify("Grasps", "pick a target instance")
+                return
+            views = tuple(DepthView(v.camera, v.depth) for v in d.views if v.depth is not None)
+            gs = create_backend("grasp_planner").plan(request_from_segmentation(d.seg, k, views))
+            self._grasps, self._target = gs.top(int(self.top.value)), k
+            note = gs.message or ("" if views else "no depth views: cloud-only collision checks")
+            self.summary.content = (f"**{len(self._grasps)}** grasps for I{k}" if len(self._grasps) else
+                                    f"no grasp for I{k}") + (f"  \n_{note}_" if note else "")
+            self._draw(s)
+
+    def _draw(self, s: "Session") -> None:
+        g = self._grasps
+        for h in (self.all, self.selected, self.region, self.contacts):
+            if h is not None:
+                h.visible = False
+        self.grasp.options = ["none"] + [f"{k}: I{int(g.instance[k])} score {g.scores[k]:.2f} "
+                                         f"w {g.widths[k] * 1000:.0f} mm" for k in range(len(g))]
+        self.grasp.value = "none"
+        if len(g):
+            segs = np.concatenate([gripper_segments(g.poses[k], g.widths[k]) for k in range(len(g))])
             col = np.repeat(ramp_colors(g.scores, float(g.scores.min()), float(g.scores.max())), 4, axis=0)
             self.all = s.client.scene.add_line_segments("/grasps/all", segs, np.repeat(col[:, None], 2, axis=1),
-                                                        thickness=1.5, thickness_units="screen")
+                                                        thickness=2.0, thickness_units="screen")
 
     def select_grasp(self, s: "Session", value: str) -> None:
         with s.lock:
-            g = s.app.data.grasps
-            if value == "none":
+            g = self._grasps
+            for h in (self.selected, self.region, self.contacts):
+                if h is not None:
+                    h.visible = False
+            if value == "none" or g is None:
                 s.state.grasp = -1
-                if self.selected is not None:
-                    self.selected.visible = False
                 return
             k = int(value.split(":")[0])
             s.state.grasp = k
-            mesh = gripper_mesh(g.poses[k], g.widths[k])
+            T, w = g.poses[k], float(g.widths[k])
+            mesh = gripper_mesh(T, w)
             if mesh is not None:  # the gripper mesh of static/, fingers at this grasp's width
                 self.selected = s.client.scene.add_mesh_simple(
-                    "/grasps/selected", mesh[0], mesh[1], color=tuple(int(c) for c in HIGHLIGHT))
+                    "/grasps/selected", mesh[0], mesh[1], color=tuple(int(c) for c in HIGHLIGHT), opacity=0.6)
             else:
                 self.selected = s.client.scene.add_line_segments(
-                    "/grasps/selected", gripper_segments(g.poses[k], g.widths[k]), HIGHLIGHT, thickness=5.0,
-                    thickness_units="screen")
+                    "/grasps/selected", gripper_segments(T, w), HIGHLIGHT, thickness=5.0, thickness_units="screen")
+            self.region = s.client.scene.add_line_segments(
+                "/grasps/closing_region", closing_region_segments(T, w), (40, 200, 255), thickness=3.0,
+                thickness_units="screen")
+            if g.contacts is not None:
+                self.contacts = s.client.scene.add_point_cloud(
+                    "/grasps/contacts", np.asarray(g.contacts[k], np.float32),
+                    np.array([[255, 40, 40], [255, 40, 40]], np.uint8), point_size=0.008, point_shape="circle")
+
+    def _export(self, s: "Session") -> None:
+        ann = s.app.annotations
+        run_dir = getattr(ann, "run_dir", None)
+        if run_dir is None or self._grasps is None:
+            s.notify("Grasps", "nothing to export (plan first) or no run folder (read-only view)")
+            return
+        self._grasps.save_json(run_dir / "grasps.json", self._target)
+        self._grasps.save_npz(run_dir / "grasps.npz")
+        s.notify("Grasps", f"wrote {run_dir / 'grasps.json'} and grasps.npz")
+
+
+def _option_id(text: str | None) -> int:
+    try:
+        return int(str(text).split()[0][1:])
+    except (ValueError, IndexError):
+        return -1

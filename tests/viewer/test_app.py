@@ -66,4 +66,4 @@ def test_gripper_segments_follow_the_pose():
     s = gripper_segments(T, 0.08)
     assert s.shape == (4, 2, 3)
     assert np.isclose(np.linalg.norm(s[0, 0] - s[0, 1]), 0.08)
-    assert np.allclose(s[1, 1], [1 - 0.04, 2, 3])  # a fingertip at the gripper origin plane
+    assert np.allclose(s[1, 1], [1 - 0.04, 2, 3.02])  # a fingertip (docs/conventions.md, "Gripper")
