@@ -19,7 +19,10 @@ from functools import lru_cache
 
 import numpy as np
 
-__all__ = ["COLOR_WORDS", "SYNONYMS", "color_shares", "color_name_of", "colors_in_text", "strip_colors"]
+__all__ = ["COLOR_VERSION", "COLOR_WORDS", "SYNONYMS", "color_shares", "color_name_of", "colors_in_text", "strip_colors"]
+
+COLOR_VERSION = "2"
+"""Bump when the naming rules change: cached colour shares of older rules are recomputed."""
 
 COLOR_WORDS: tuple[str, ...] = (
     "red", "orange", "yellow", "green", "blue", "purple", "pink", "brown", "white", "grey", "black",
@@ -62,7 +65,8 @@ def _name_hsv(h: np.ndarray, s: np.ndarray, v: np.ndarray) -> np.ndarray:
     out[chroma & purple] = idx["purple"]
     out[chroma & magenta] = idx["pink"]
     # dark, warm, moderately saturated: brown (wood, cardboard, chocolate)
-    brown = chroma & (red | orange) & (v < 150) & ~(red & (s > 170) & (v > 95))
+    # a shaded red object stays red (a red mug in a dim scene); only a dull dark red is brown
+    brown = chroma & ((orange & (v < 150)) | (red & (v < 150) & (s < 130)))
     brown |= chroma & yellow & (v < 100)  # shaded yellow stays yellow down to mid value
     brown |= chroma & orange & (s < 130) & (v < 215)  # wood, cardboard: light but unsaturated
     out[brown] = idx["brown"]

@@ -30,7 +30,9 @@ __all__ = ["ImagenetMiniLM", "imagenet_class_names", "imagenet_label_texts"]
 
 NAME = "imagenet-minilm"
 VERSION = "1"
-"""Bump when anything that changes the cached evidence changes (crops, weights, labels)."""
+"""Image side: bump when anything that changes the cached mask evidence changes (crops,
+weights, preprocessing). Label texts and colour rules are versioned separately (the cache
+refreshes them without re-running the network)."""
 
 
 def imagenet_class_names() -> tuple[str, ...]:
@@ -49,10 +51,12 @@ def _is_latin(syn: str) -> bool:
 
 
 def imagenet_label_texts(max_synonyms: int = 3) -> tuple[str, ...]:
-    """Text embedded for each class: its first common synonyms (Latin binomials dropped)."""
+    """Text embedded for each class: its first common synonyms (Latin binomials, which only
+    ever follow the common names, dropped; the first synonym is always kept)."""
     out = []
     for name in imagenet_class_names():
-        syn = [s.strip() for s in name.split(",") if s.strip() and not _is_latin(s.strip())]
+        syn = [s.strip() for s in name.split(",") if s.strip()]
+        syn = syn[:1] + [s for s in syn[1:] if not _is_latin(s)]
         out.append(", ".join(syn[:max_synonyms]))
     return tuple(out)
 

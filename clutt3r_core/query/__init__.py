@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from clutt3r_core.errors import Clutt3rError, SceneError, SceneFileError
+from clutt3r_core.language.colors import COLOR_VERSION
 from clutt3r_core.query.evidence import (
     CACHE_NAME,
     InstanceEvidence,
@@ -27,6 +28,8 @@ from clutt3r_core.query.evidence import (
     aggregate_instances,
     compute_node_evidence,
     load_node_evidence,
+    refresh_colors,
+    refresh_labels,
     run_cache_key,
     save_node_evidence,
 )
@@ -126,16 +129,27 @@ class RunQuery:
         seg = load_run(run_dir)
         key = run_cache_key(run_dir, g.name, str(getattr(g, "version", "")))
         ev = load_node_evidence(run_dir / CACHE_NAME, key) if use_cache else None
-        if ev is None:
+
+        def scene_of():
             scene_dir = Path(scene) if scene is not None else run_scene_folder(run_dir)
             if scene_dir is None:
                 raise SceneFileError(run_dir / "run.json",
                                      "the run records no scene folder; pass --scene SCENE to embed its masks")
             from clutt3r_core.io import load_scene
 
-            sc = load_scene(scene_dir)
-            ev = compute_node_evidence(seg, sc, g, progress=progress)
+            return load_scene(scene_dir)
+
+        if ev is None:
+            ev = compute_node_evidence(seg, scene_of(), g, progress=progress)
             save_node_evidence(ev, run_dir / CACHE_NAME, key)
+        else:
+            stale = False
+            if ev.color_version != COLOR_VERSION:
+                ev, stale = refresh_colors(ev, seg, scene_of()), True
+            if ev.labels != (tuple(g.labels) if g.labels is not None else ()):
+                ev, stale = refresh_labels(ev, g), True
+            if stale:
+                save_node_evidence(ev, run_dir / CACHE_NAME, key)
         return cls.from_evidence(seg, g, ev, config, run_dir)
 
     @classmethod

@@ -8,21 +8,23 @@ shares, pixel area), cached in ``RUN/query_cache.npz``, and aggregated per insta
 
 Cache: ``query_cache.npz`` holds the node evidence, the backend's label embeddings (label
 mode) and a key: SHA-256 of the run's ``trace/trace.json`` and ``instances.npz`` plus the
-backend's name and version. A different key (the run was re-segmented, another backend)
-means the evidence is recomputed, never reused.
+backend's name and (image-side) version. A different key (the run was re-segmented,
+another backend) means the evidence is recomputed, never reused. Colour shares (rules
+versioned by ``COLOR_VERSION``) and label embeddings (compared by their label texts) are
+refreshed on their own when they are stale, without re-running the image network.
 """
 
 from __future__ import annotations
 
 import hashlib
 import io
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from clutt3r_core.errors import SceneError, SceneFileError
-from clutt3r_core.language.colors import COLOR_WORDS, color_shares
+from clutt3r_core.language.colors import COLOR_VERSION, COLOR_WORDS, color_shares
 
 __all__ = [
     "CACHE_NAME",
@@ -30,6 +32,8 @@ __all__ = [
     "InstanceEvidence",
     "instance_node_lists",
     "compute_node_evidence",
+    "refresh_colors",
+    "refresh_labels",
     "aggregate_instances",
     "run_cache_key",
     "save_node_evidence",
@@ -56,6 +60,7 @@ class NodeEvidence:
         label_embeddings: (L, Dt) float32 text embeddings of the backend's labels, or None
             (shared-space backend).
         labels: the label texts (label mode), else ().
+        color_version: ``COLOR_VERSION`` of the rules that named the colours.
     """
 
     nodes: np.ndarray
@@ -68,6 +73,7 @@ class NodeEvidence:
     version: str
     label_embeddings: np.ndarray | None = None
     labels: tuple[str, ...] = ()
+    color_version: str = COLOR_VERSION
 
     def __post_init__(self) -> None:
         u = len(self.nodes)
@@ -110,14 +116,9 @@ def instance_node_lists(seg) -> list[tuple[int, ...]]:
     return [tuple(int(i) for i in seg.instance_nodes(k)) for k in range(seg.num_instances)]
 
 
-def compute_node_evidence(seg, scene, grounder, progress: bool = False) -> NodeEvidence:
-    """Describe every mask that belongs to an instance of ``seg`` with ``grounder``.
-
-    ``scene``: the scene the run was made from (its initial views carry the images and
-    the mask candidates named by the trace's nodes).
-    """
+def _view_masks(seg, scene, nodes: np.ndarray):
+    """Yield (view, rows of ``nodes`` in that view, their masks (m, H, W) bool), view by view."""
     tr = seg.trace
-    nodes = np.array(sorted({i for g in instance_node_lists(seg) for i in g}), np.int64)
     views = {int(v.frame): v for v in scene.initial_views}
     by_frame: dict[int, list[int]] = {}
     for j, i in enumerate(nodes):
@@ -125,6 +126,36 @@ def compute_node_evidence(seg, scene, grounder, progress: bool = False) -> NodeE
         if f not in views:
             raise SceneError(f"{scene.name or 'scene'}: the run names frame {f}, which the scene does not have")
         by_frame.setdefault(f, []).append(j)
+    for f, js in sorted(by_frame.items()):
+        v = views[f]
+        if v.masks is None:
+            raise SceneError(f"{v.name or f}: view has no mask candidates")
+        idx = [v.masks.index_of(int(tr.nodes.mask_id[nodes[j]])) for j in js]
+        yield v, js, v.masks.masks[idx]
+
+
+def refresh_colors(ev: NodeEvidence, seg, scene) -> NodeEvidence:
+    """``ev`` with its colour shares recomputed by the current rules (no network involved)."""
+    colors = np.zeros_like(ev.colors)
+    for v, js, masks in _view_masks(seg, scene, ev.nodes):
+        colors[js] = color_shares(v.rgb, masks)
+    return replace(ev, colors=colors, color_version=COLOR_VERSION)
+
+
+def refresh_labels(ev: NodeEvidence, grounder) -> NodeEvidence:
+    """``ev`` with the backend's current label texts and their embeddings."""
+    labels = tuple(grounder.labels) if grounder.labels is not None else ()
+    emb = np.asarray(grounder.label_embeddings(), np.float32) if labels else None
+    return replace(ev, labels=labels, label_embeddings=emb)
+
+
+def compute_node_evidence(seg, scene, grounder, progress: bool = False) -> NodeEvidence:
+    """Describe every mask that belongs to an instance of ``seg`` with ``grounder``.
+
+    ``scene``: the scene the run was made from (its initial views carry the images and
+    the mask candidates named by the trace's nodes).
+    """
+    nodes = np.array(sorted({i for g in instance_node_lists(seg) for i in g}), np.int64)
     u = len(nodes)
     feats = grounding = None
     colors = np.zeros((u, len(COLOR_WORDS)), np.float32)
@@ -135,12 +166,7 @@ def compute_node_evidence(seg, scene, grounder, progress: bool = False) -> NodeE
         from tqdm import tqdm
 
         bar = tqdm(total=u, desc="embedding masks", unit="mask", leave=False)
-    for f, js in sorted(by_frame.items()):
-        v = views[f]
-        if v.masks is None:
-            raise SceneError(f"{v.name or f}: view has no mask candidates")
-        idx = [v.masks.index_of(int(tr.nodes.mask_id[nodes[j]])) for j in js]
-        masks = v.masks.masks[idx]
+    for v, js, masks in _view_masks(seg, scene, nodes):
         ev = grounder.mask_evidence(v.rgb, masks)
         if feats is None:
             feats = np.zeros((u, ev.features.shape[1]), np.float32)
@@ -213,6 +239,7 @@ def save_node_evidence(ev: NodeEvidence, path: str | Path, key: str) -> Path:
         key=np.array(key), backend=np.array(ev.backend), version=np.array(ev.version),
         nodes=ev.nodes, features=ev.features.astype(np.float16), grounding=ev.grounding.astype(np.float32),
         colors=ev.colors, area=ev.area, image_area=ev.image_area, labels=np.array(ev.labels, dtype=str),
+        color_version=np.array(ev.color_version),
     )
     if ev.label_embeddings is not None:
         arrays["label_embeddings"] = ev.label_embeddings.astype(np.float32)
@@ -237,6 +264,7 @@ def load_node_evidence(path: str | Path, key: str) -> NodeEvidence | None:
                 grounding=z["grounding"].astype(np.float32), colors=z["colors"], area=z["area"],
                 image_area=z["image_area"], backend=str(z["backend"]), version=str(z["version"]),
                 label_embeddings=lab, labels=tuple(str(s) for s in z["labels"]),
+                color_version=str(z["color_version"]) if "color_version" in z.files else "",
             )
     except (OSError, ValueError, KeyError) as e:
         raise SceneFileError(path, f"unreadable query cache ({e}); delete it to recompute") from None

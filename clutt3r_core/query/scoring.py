@@ -41,6 +41,7 @@ __all__ = [
     "score_instances",
 ]
 
+_NOUN_COLORS = {"orange"}
 _FILLER = {"the", "a", "an", "this", "that", "please", "pick", "grab", "get", "find", "me", "up", "one", "object"}
 
 
@@ -88,8 +89,13 @@ def parse_query(text: str) -> TextQuery:
     Raises ``Clutt3rError`` for an empty query."""
     if not isinstance(text, str) or not text.strip():
         raise Clutt3rError("empty query: say what to look for, e.g. \"the yellow mustard bottle\"")
-    words = [w for w in re.findall(r"[A-Za-z0-9'-]+", strip_colors(text)) if w.lower() not in _FILLER]
-    return TextQuery(text=text.strip(), name=" ".join(words), colors=colors_in_text(text))
+    words = [w for w in re.findall(r"[A-Za-z0-9'-]+", text) if w.lower() not in _FILLER]
+    colors = colors_in_text(text)
+    # a colour word is an adjective, except a colour that is also a thing ("orange") at the end
+    # of the phrase: "the orange" names the fruit (and still counts as the colour)
+    name = [w for i, w in enumerate(words)
+            if not colors_in_text(w) or (i == len(words) - 1 and w.lower() in _NOUN_COLORS)]
+    return TextQuery(text=text.strip(), name=" ".join(name), colors=colors)
 
 
 @dataclass(frozen=True)

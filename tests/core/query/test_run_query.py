@@ -132,3 +132,21 @@ def test_stale_cache_of_another_run_is_recomputed(run_copy):
     g = FakeGrounder()
     RunQuery.open(run_copy, grounder=g)
     assert g.calls > 0
+
+
+def test_stale_colours_and_labels_refresh_without_the_network(run_copy):
+    from clutt3r_core.language.colors import COLOR_VERSION
+    from clutt3r_core.query.evidence import load_node_evidence, run_cache_key, save_node_evidence
+
+    from dataclasses import replace
+
+    rq = RunQuery.open(run_copy, grounder=FakeGrounder())
+    key = run_cache_key(run_copy, "fake-ground", "1")
+    ev = load_node_evidence(run_copy / CACHE_NAME, key)
+    save_node_evidence(replace(ev, colors=ev.colors * 0, color_version="old", labels=("x",) * 3),
+                       run_copy / CACHE_NAME, key)
+    g = FakeGrounder()
+    rq2 = RunQuery.open(run_copy, grounder=g)
+    assert g.calls == 0
+    assert rq2.evidence.color_version == COLOR_VERSION and rq2.evidence.labels == g.labels
+    np.testing.assert_allclose(rq2.evidence.colors, rq.evidence.colors, atol=1e-6)
