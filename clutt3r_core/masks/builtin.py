@@ -21,8 +21,8 @@ resized back with nearest neighbour):
    3D position and normal, intersected with the coarse regions.
 4. **Region-adjacency merging.** Adjacent superpixels of one coarse region are merged in
    order of a boundary cost (average linkage over the shared boundary, so one weak
-   pixel cannot leak): share of boundary pixel pairs with a depth jump, mean crease
-   (1 - cos of the normal angle) across it, and the distance of the regions' mean
+   pixel cannot leak): share of boundary pixel pairs with a depth jump, mean concave
+   crease (1 - cos of the normal angle; convex creases count 10 %) across it, and the distance of the regions' mean
    colours. The partition is cut at each of ``levels``: each cut is a partition nested in
    the next, so every candidate's children lie inside it (a containment hierarchy by
    construction).
@@ -81,6 +81,7 @@ class BuiltinMaskConfig:
         w_normal: weight of the unit normal in the feature image.
         w_jump: weight of the share of boundary pairs with a depth jump in the merge cost.
         w_crease: weight of the mean crease (1 - cos angle of the normals) in the merge cost.
+        convex_factor: a convex crease counts this much of a concave one (LCCP's convexity prior).
         w_colour: weight of the mean-colour distance (CIE Lab, /100) in the merge cost.
         levels: merge-cost cuts; one partition per cut, finest first.
         min_area_frac: smallest candidate, fraction of the image (Grounded-SAM-like 4e-4).
@@ -106,6 +107,7 @@ class BuiltinMaskConfig:
     w_normal: float = 20.0
     w_jump: float = 1.0
     w_crease: float = 2.0
+    convex_factor: float = 0.1
     w_colour: float = 1.0
     levels: tuple[float, ...] = (0.15, 0.3, 0.5)
     min_area_frac: float = 4e-4
@@ -139,8 +141,8 @@ def _points(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
     return np.stack([x, y, z], axis=-1)
 
 
-def _normals(P: np.ndarray, valid: np.ndarray, win: int) -> np.ndarray:
-    """Unit normals from central differences of a box-smoothed point map (holes ignored)."""
+def _normals(P: np.ndarray, valid: np.ndarray, win: int) -> tuple[np.ndarray, np.ndarray]:
+    """(unit normals, the box-smoothed point map they come from), holes ignored."""
     Pz = np.where(valid[..., None], P, 0).astype(np.float32)
     wsum = cv2.boxFilter(valid.astype(np.float32), -1, (win, win), normalize=False)
     Ps = cv2.boxFilter(Pz, -1, (win, win), normalize=False) / np.maximum(wsum, 1)[..., None]
@@ -154,7 +156,7 @@ def _normals(P: np.ndarray, valid: np.ndarray, win: int) -> np.ndarray:
     norm = np.linalg.norm(n, axis=-1, keepdims=True)
     n = n / np.maximum(norm, 1e-12)
     n[n[..., 2] > 0] *= -1  # face the camera (camera looks along +z)
-    return n
+    return n, Ps
 
 
 def fit_support_plane(
@@ -349,7 +351,7 @@ def builtin_candidates(view: View, cfg: BuiltinMaskConfig = BuiltinMaskConfig(),
     lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB).astype(np.float32)
     lab[..., 0] *= 100.0 / 255.0
     lab[..., 1:] -= 128.0
-    nrm = _normals(P, valid, cfg.normal_window)
+    nrm, Ps = _normals(P, valid, cfg.normal_window)
     feat = np.concatenate([lab, P * cfg.w_position, nrm * cfg.w_normal], axis=-1)
     feat[~fg] = -1e4  # the support is one far-away colour: no superpixel straddles it
     from skimage.segmentation import felzenszwalb
@@ -367,7 +369,11 @@ def builtin_candidates(view: View, cfg: BuiltinMaskConfig = BuiltinMaskConfig(),
     # 4. merging over the region adjacency graph, only inside a coarse region
     nf = nrm.reshape(-1, 3)
     jump = d3 > np.maximum(cfg.fine_jump_px * foot, cfg.fine_jump_min)
-    crease = 1.0 - np.clip(np.sum(nf[a] * nf[b], axis=1), -1, 1)
+    # concave creases separate objects, convex ones are an object's own edges (the local
+    # convexity criterion of LCCP, Stein et al. CVPR 2014): (n_a - n_b) . (p_a - p_b) > 0 is convex
+    psf = Ps.reshape(-1, 3)
+    convex = np.sum((nf[a] - nf[b]) * (psf[a] - psf[b]), axis=1) > 0
+    crease = (1.0 - np.clip(np.sum(nf[a] * nf[b], axis=1), -1, 1)) * np.where(convex, cfg.convex_factor, 1.0)
     inside = coarse_ok  # pairs of one coarse region (never across the support or a jump)
     levels = _merge_levels(sp, n_sp, a[inside], b[inside], jump[inside], crease[inside],
                            lab.reshape(-1, 3).astype(np.float64), cfg)
