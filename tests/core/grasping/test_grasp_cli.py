@@ -46,7 +46,8 @@ def test_grasp_json_and_files(run_dir, capsys, tmp_path):
 
 
 def test_no_grasp_is_an_empty_list_not_a_crash(run_dir, capsys):
-    main(["grasp", str(run_dir), "--instance", "0", "--json", "--config.pair-angle-deg", "0.01"])
+    main(["grasp", str(run_dir), "--instance", "0", "--json", "--config.pair-angle-deg", "0.01",
+          "--config.relaxed-angle-deg", "0.01"])
     obj = _last_json(capsys)
     assert obj["grasps"] == [] and "no grasp" in obj["message"]
     assert json.loads((run_dir / "grasps.json").read_text())["grasps"] == []
