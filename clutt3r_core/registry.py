@@ -336,6 +336,14 @@ for _kind in ("mask_embedder", "text_embedder"):
         extra="language", priority=10 if _kind == "text_embedder" else 0,
         description="EfficientNet-Lite0 (ImageNet) masks + MiniLM text, grounded via the 1000 class names; offline",
     )
+    register_backend(
+        _kind, "open-clip", "clutt3r_core.language.clip:OpenClip", requires=("open_clip=open-clip-torch",),
+        extra="clip", description="open_clip from a local checkpoint (checkpoint=PATH, model=ARCH); never downloads",
+    )
+    register_backend(
+        _kind, "clip-onnx", "clutt3r_core.language.clip:ClipOnnx", requires=("onnxruntime", "tokenizers"),
+        extra="language", description="CLIP image/text ONNX pair (image_model=, text_model=, tokenizer= paths)",
+    )
 del _kind
 
 # -- grasp planners (issue 9): register below this line -----------------------------------------
