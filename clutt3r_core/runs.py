@@ -19,6 +19,7 @@ from __future__ import annotations
 import json
 import os
 import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -129,13 +130,7 @@ def load_run(folder: str | Path):
     if missing is not None:
         raise SceneFileError(missing, "missing: not a clutt3r run folder")
     info = read_run_info(folder)
-    try:
-        with np.load(folder / "instances.npz") as f:
-            a = dict(f)
-        with np.load(folder / "cloud.npz") as f:
-            c = dict(f)
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
-        raise SceneFileError(folder, f"unreadable run arrays: {e}") from None
+    a, c = _read_npz(folder / "instances.npz"), _read_npz(folder / "cloud.npz")
     try:
         return Segmentation(
             points=a["points"], colors=a["colors"], normals=c["normals"], counts=c["counts"],
@@ -150,6 +145,15 @@ def load_run(folder: str | Path):
         raise SceneFileError(folder / "trace", f"damaged trace: {type(e).__name__}: {e}") from None
     except SceneError as e:  # arrays of the wrong shape: a damaged or hand-edited run
         raise SceneFileError(folder, f"inconsistent run arrays: {e}") from None
+
+
+def _read_npz(path: Path) -> dict[str, np.ndarray]:
+    """Every array of an npz file, or SceneFileError naming it (truncated, not a zip, ...)."""
+    try:
+        with np.load(path) as f:
+            return dict(f)
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as e:
+        raise SceneFileError(path, f"unreadable run arrays ({e}); the run is damaged, segment the scene again") from None
 
 
 def read_run_info(folder: str | Path) -> RunInfo:

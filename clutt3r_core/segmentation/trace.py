@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import json
 import time
+import zipfile
+import zlib
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
@@ -200,7 +202,7 @@ def load_trace(folder: str | Path) -> Trace:
     config = config_from_json(meta["config"], jpath)
     try:
         z = dict(np.load(npath))
-    except (OSError, ValueError) as e:
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as e:  # truncated / corrupt npz
         raise SceneFileError(npath, f"unreadable: {e}") from None
     occ = np.zeros(tuple(z["occ_shape"]), np.float32)
     occ[z["occ_rows"], z["occ_cols"]] = z["occ_vals"]
