@@ -141,7 +141,7 @@ def main(argv: list[str] | None = None) -> int:
                 f"R75 {np.mean([x['g_r75'] for x in v]):.3f} cands {np.mean([x['g_n'] for x in v]):.1f}")
         for k in ("ap_grounded-sam-like", "ap_builtin"):
             if k in r:
-                line += f" | {k[3:]} AP25/50/AP {100 * r[k]['ap25']:.1f}/{100 * r[k]['ap50']:.1f}/{100 * r[k]['ap']:.1f}"
+                line += f" | {k[3:]} AP25/50/AP {r[k]['ap25']:.1f}/{r[k]['ap50']:.1f}/{r[k]['ap']:.1f}"
         print(line, flush=True)
     if args.samples and Path(args.samples).is_dir():
         for name in ("sample_seq1", "sample_seq4"):
