@@ -27,6 +27,7 @@ from __future__ import annotations
 import json
 import re
 import zipfile
+import zlib
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -285,8 +286,14 @@ def _load_gt(root: Path, views: list[View]) -> GroundTruth:
         try:
             with np.load(ppath) as z:
                 points, labels = z["points"], z["labels"]
-        except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile) as e:
+        except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as e:
             raise SceneFileError(ppath, f"unreadable ground-truth points: {e}") from None
+        # found by tests/core/robustness/test_fuzz_loaders.py: a scalar 'points' reached GroundTruth's reshape
+        if points.ndim != 2 or points.shape[1] != 3 or points.dtype.kind not in "fiu":
+            raise SceneFileError(ppath, f"'points' must be (N, 3) real numbers (metres), got {points.dtype} {points.shape}")
+        if labels.shape != (len(points),) or labels.dtype.kind not in "iu":
+            raise SceneFileError(
+                ppath, f"'labels' must be ({len(points)},) integers (one per point), got {labels.dtype} {labels.shape}")
     try:
         return GroundTruth(tuple(objects), maps, points, labels)
     except SceneError as e:
