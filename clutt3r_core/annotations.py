@@ -63,15 +63,17 @@ from clutt3r_core.corrections import (  # noqa: F401  (re-exported: the public n
     SetCategory,
     Split,
     Undo,
-    _apply_edit,
+    Inverse,
     _initial,
     active_edits,
     apply,
+    apply_edit,
+    revert,
     op_from_json,
     op_to_json,
 )
 from clutt3r_core.errors import SceneError, SceneFileError
-from clutt3r_core.io.images import atomic_write_bytes, npz_bytes
+from clutt3r_core.io.images import atomic_write_bytes
 
 __all__ = [
     "Relabel",
@@ -139,6 +141,7 @@ class _ParsedLog:
     good_bytes: int  # bytes up to and including the last complete entry's newline
     ends: tuple[int, ...]  # byte offset after entry i's newline
     torn_line: int  # 1-based line number of the ignored torn line, 0 if none
+    data: bytes = b""  # the file as read (hashed for the snapshot check without a second read)
 
 
 def _parse_log(path: Path) -> _ParsedLog:
@@ -180,7 +183,7 @@ def _parse_log(path: Path) -> _ParsedLog:
     if tail:  # no newline: the append was interrupted before it was acknowledged
         torn_line = len(complete) + 1
     good = ends[-1] if ends else len(complete[0]) + 1
-    return _ParsedLog(header, tuple(ops), good, tuple(ends), torn_line)
+    return _ParsedLog(header, tuple(ops), good, tuple(ends), torn_line, data)
 
 
 def _op_line(op: Op, seq: int) -> bytes:
@@ -216,11 +219,20 @@ class Annotations:
         self.readonly = readonly
         self._lock = threading.RLock()
         self._fd: int | None = None
-        self._ops: tuple = ()
+        self._ops: list = []
+        self._ops_tuple: tuple | None = ()  # cache of tuple(self._ops); None = stale
+        # the editor's stacks, kept incrementally (O(1) per entry; active_edits() is their replay)
+        self._active: list[int] = []
+        self._redo: list[int] = []
+        self._inverse: dict[int, Inverse] = {}  # active edit's log index -> how to revert it
         self._log_bytes = 0
+        self._log_hash = hashlib.sha256()  # of the log's first _log_bytes bytes (snapshot check)
         self._header: dict | None = None
         self._labels = _initial(base)
         self._saved_ops = 0  # log entries the snapshot on disk reflects
+        self._saved_time = 0.0  # time.time() of the last snapshot write (0: none this session)
+        self._last_append = 0.0
+        self._opened = time.time()
         self._instances_sha = _file_sha256(self.run_dir / "instances.npz")
 
     # -- opening ---------------------------------------------------------------------
@@ -273,37 +285,90 @@ class Annotations:
             active_edits(parsed.ops)
         except SceneError as e:
             raise SceneFileError(path, f"line {_line_of(str(e))}: {e}") from None
-        self._header, self._ops, self._log_bytes = h, parsed.ops, parsed.good_bytes
-        self._labels = self._from_snapshot(parsed) or self._replay(path)
+        self._header, self._log_bytes = h, parsed.good_bytes
+        self._log_hash = hashlib.sha256(parsed.data[: parsed.good_bytes])
+        start = self._from_snapshot(parsed)  # entries the checkpoint covers (0: none usable)
+        self._ops = list(parsed.ops[:start])
+        self._ops_tuple = None
+        try:
+            for i in range(start, len(parsed.ops)):  # the tail after the checkpoint
+                self._step(parsed.ops[i])
+                self._ops.append(parsed.ops[i])
+        except SceneError as e:
+            raise SceneFileError(path, f"line {i + 2}: entry {i}: {e}") from None
+        self._ops_tuple = None
         if recover:
             self._remove_stale_temps()
 
-    def _replay(self, path: Path) -> CorrectedLabels:
-        try:
-            return apply(self.base, self._ops)
-        except SceneError as e:
-            raise SceneFileError(path, f"line {_line_of(str(e))}: {e}") from None
+    def _prepare(self, op: Op):
+        """(labels after log entry ``op`` (number len(self._ops)), a function that then updates the
+        stacks). Pure until that function runs; O(N + changed points), never a replay. Raises
+        SceneError if ``op`` does not apply."""
+        i = len(self._ops)
+        if isinstance(op, Undo):
+            if not self._active or self._active[-1] != op.target:
+                raise SceneError(f"Undo({op.target}) but the last active edit is "
+                                 f"{self._active[-1] if self._active else 'none'}")
+            new = revert(self._labels, self._inverse[op.target])
 
-    def _from_snapshot(self, parsed: _ParsedLog) -> CorrectedLabels | None:
+            def done() -> None:
+                del self._inverse[op.target]
+                self._redo.append(self._active.pop())
+        elif isinstance(op, Redo):
+            if not self._redo or self._redo[-1] != op.target:
+                raise SceneError(f"Redo({op.target}) but the last undone edit is "
+                                 f"{self._redo[-1] if self._redo else 'none'}")
+            new, inv = apply_edit(self.base, self._labels, self._ops[op.target])
+
+            def done() -> None:
+                self._inverse[op.target] = inv
+                self._active.append(self._redo.pop())
+        else:
+            new, inv = apply_edit(self.base, self._labels, op)
+
+            def done() -> None:
+                self._inverse[i] = inv
+                self._active.append(i)
+                for j in self._redo:  # dropped for good (a new edit clears the redo stack)
+                    self._inverse.pop(j, None)
+                self._redo.clear()
+        return new, done
+
+    def _step(self, op: Op) -> CorrectedLabels:
+        new, done = self._prepare(op)
+        done()
+        self._labels = new
+        return new
+
+    def _from_snapshot(self, parsed: _ParsedLog) -> int:
+        """Load the checkpoint when it is a state of this very log (its entry count <= the log's and
+        the SHA-256 of those log bytes matches); returns the entries it covers (0: not usable, the
+        caller replays from the start). The inverses of its active edits come with it, so undo
+        stays O(1) after reopening."""
         p = self.snapshot_path
         if not p.is_file():
-            return None
+            return 0
         try:
             with np.load(p) as z:
                 n = int(z["num_ops"])
                 digest = str(z["log_sha256"])
-                if n != len(parsed.ops) or str(z["instances_sha256"]) != self._instances_sha:
-                    return None
+                if not 0 < n <= len(parsed.ops) or str(z["instances_sha256"]) != self._instances_sha:
+                    return 0
+                end = parsed.ends[n - 1]
+                if digest != hashlib.sha256(parsed.data[:end]).hexdigest():
+                    return 0
                 lab = CorrectedLabels(z["instance"].astype(np.int32), z["scores"].astype(np.float32),
                                       tuple(str(c) for c in z["categories"]), z["deleted"].astype(bool))
+                if len(lab.instance) != len(self.base.instance):
+                    return 0
+                active, redo = active_edits(parsed.ops[:n])
+                inverse = _inverses_from(z, active)
         except (OSError, ValueError, KeyError, SceneError):
-            return None  # a cache: an unreadable snapshot is rebuilt from the log
-        if digest != _prefix_sha256(self.log_path, parsed.ends[n - 1] if n else _header_end(self.log_path)):
-            return None
-        if len(lab.instance) != len(self.base.instance):
-            return None
+            return 0  # a cache: an unreadable or older-format snapshot is rebuilt from the log
+        self._labels, self._inverse = lab, inverse
+        self._active, self._redo = list(active), list(redo)
         self._saved_ops = n
-        return lab
+        return n
 
     def _open_fd(self) -> None:
         if self._fd is not None:
@@ -363,6 +428,7 @@ class Annotations:
         _fsync_dir(path.parent)
         self._open_fd()
         self._header, self._log_bytes = header, len(data)
+        self._log_hash = hashlib.sha256(data)
 
     # -- state -----------------------------------------------------------------------
 
@@ -373,7 +439,10 @@ class Annotations:
     @property
     def ops(self) -> tuple:
         """Every log entry, in order (edits, undos, redos)."""
-        return self._ops
+        with self._lock:
+            if self._ops_tuple is None:
+                self._ops_tuple = tuple(self._ops)
+            return self._ops_tuple
 
     @property
     def num_ops(self) -> int:
@@ -382,24 +451,34 @@ class Annotations:
     @property
     def num_edits(self) -> int:
         """Edits in effect now."""
-        return len(active_edits(self._ops)[0])
+        return len(self._active)
 
     @property
     def can_undo(self) -> bool:
-        return bool(active_edits(self._ops)[0])
+        return bool(self._active)
 
     @property
     def can_redo(self) -> bool:
-        return bool(active_edits(self._ops)[1])
+        return bool(self._redo)
 
     @property
     def saved(self) -> bool:
         """True when the snapshot reflects every log entry (the log itself is always saved)."""
         return self._saved_ops == len(self._ops)
 
+    @property
+    def saved_ops(self) -> int:
+        """Log entries the snapshot (checkpoint) on disk reflects."""
+        return self._saved_ops
+
+    @property
+    def last_write(self) -> float:
+        """time.time() of the last fsynced log append or snapshot write of this instance (0: none)."""
+        return max(self._last_append, self._saved_time)
+
     def history(self) -> tuple[LogEntry, ...]:
-        active = set(active_edits(self._ops)[0])
-        return tuple(LogEntry(i, op, i in active) for i, op in enumerate(self._ops))
+        active = set(self._active)
+        return tuple(LogEntry(i, op, i in active) for i, op in enumerate(self.ops))
 
     # -- editing ---------------------------------------------------------------------
 
@@ -414,34 +493,33 @@ class Annotations:
         if not op.author:
             op = replace(op, author=self.author)
         with self._lock:
-            new = _apply_edit(self.base, self._labels, op)
-            self._append(op)
-            self._labels = new
-            return new
+            return self._commit(op)
 
     def undo(self) -> CorrectedLabels:
-        """Revert the most recent active edit (appends an Undo entry)."""
+        """Revert the most recent active edit (appends an Undo entry). O(changed points + N):
+        the edit's inverse delta, never a replay of the history."""
         with self._lock:
-            active, _ = active_edits(self._ops)
-            if not active:
+            if not self._active:
                 raise SceneError("nothing to undo")
-            op = Undo(active[-1], author=self.author)
-            new = apply(self.base, self._ops + (op,))
-            self._append(op)
-            self._labels = new
-            return new
+            return self._commit(Undo(self._active[-1], author=self.author))
 
     def redo(self) -> CorrectedLabels:
         """Re-apply the most recently undone edit (appends a Redo entry)."""
         with self._lock:
-            _, redo = active_edits(self._ops)
-            if not redo:
+            if not self._redo:
                 raise SceneError("nothing to redo")
-            op = Redo(redo[-1], author=self.author)
-            new = _apply_edit(self.base, self._labels, self._ops[redo[-1]])
-            self._append(op)
-            self._labels = new
-            return new
+            return self._commit(Redo(self._redo[-1], author=self.author))
+
+    def _commit(self, op: Op) -> CorrectedLabels:
+        # validate and compute on copies first, append (fsync), only then make it current:
+        # a failing op changes nothing, a crash after the append is replayed on reopen
+        if self.readonly:
+            raise SceneFileError(self.log_path, "opened read-only")
+        new, done = self._prepare(op)
+        self._append(op)
+        done()
+        self._labels = new
+        return new
 
     def _append(self, op: Op) -> None:
         if self.readonly:
@@ -457,7 +535,10 @@ class Annotations:
             view = view[n:]
         os.fsync(self._fd)  # only now does the edit count as done
         self._log_bytes += len(line)
-        self._ops = self._ops + (op,)
+        self._log_hash.update(line)
+        self._ops.append(op)
+        self._ops_tuple = None
+        self._last_append = time.time()
 
     def save(self) -> Path:
         """Write the snapshot atomically (reflecting every log entry so far); returns its path."""
@@ -465,14 +546,31 @@ class Annotations:
             if self.readonly:
                 raise SceneFileError(self.snapshot_path, "opened read-only")
             lab, n = self._labels, len(self._ops)
-            end = self._log_bytes if self._fd is not None else 0
-            digest = _prefix_sha256(self.log_path, end) if self._fd is not None else ""
-            atomic_write_bytes(self.snapshot_path, npz_bytes(
+            # the running hash: O(1) here instead of re-reading the whole log
+            digest = self._log_hash.hexdigest() if self._fd is not None else ""
+            # uncompressed: a cache rewritten during editing, where zlib over the inverses cost
+            # 10x the write (benchmarks/bench_annotations.py)
+            atomic_write_bytes(self.snapshot_path, _npz_plain(
                 instance=lab.instance, scores=lab.scores, categories=np.array(lab.categories, dtype=str),
                 deleted=lab.deleted, num_ops=np.int64(n), log_sha256=np.array(digest),
-                instances_sha256=np.array(self._instances_sha)))
+                instances_sha256=np.array(self._instances_sha),
+                **_inverses_arrays(self._active, self._inverse)))
             self._saved_ops = n
+            self._saved_time = time.time()
             return self.snapshot_path
+
+    def checkpoint(self, every: int = 64, seconds: float = 30.0) -> bool:
+        """Save the snapshot when ``every`` entries or ``seconds`` have passed since the last one
+        (an editor calls it after each edit: the log is already durable, the snapshot only makes
+        reopening fast, and rewriting it costs O(N + inverse sizes)). True when it saved."""
+        with self._lock:
+            pending = len(self._ops) - self._saved_ops
+            if self.readonly or pending <= 0:
+                return False
+            if pending >= every or time.time() - max(self._saved_time, self._opened) >= seconds:
+                self.save()
+                return True
+            return False
 
     def close(self) -> None:
         with self._lock:
@@ -493,16 +591,39 @@ class Annotations:
             pass
 
 
-def _prefix_sha256(path: Path, end: int) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        h.update(f.read(end))
-    return h.hexdigest()
+def _npz_plain(**arrays: np.ndarray) -> bytes:
+    import io
+
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    return buf.getvalue()
 
 
-def _header_end(path: Path) -> int:
-    with open(path, "rb") as f:
-        return len(f.readline())
+def _inverses_arrays(active: list[int], inverse: dict[int, Inverse]) -> dict[str, np.ndarray]:
+    """The inverses of the active edits as flat arrays (offsets + concatenation) for the snapshot."""
+    invs = [inverse[i] for i in active]
+    off = np.cumsum([0] + [len(v.points) for v in invs]).astype(np.int64)
+    doff = np.cumsum([0] + [len(v.undeleted) for v in invs]).astype(np.int64)
+    cat = lambda f: np.concatenate(f) if f else np.zeros(0, np.int32)  # noqa: E731
+    return dict(
+        inv_edit=np.asarray(active, np.int64), inv_off=off,
+        inv_points=cat([v.points for v in invs]).astype(np.int32), inv_old=cat([v.old for v in invs]).astype(np.int32),
+        inv_k=np.asarray([v.num_instances for v in invs], np.int64),
+        inv_cat_id=np.asarray([v.category[0] for v in invs], np.int64),
+        inv_cat_text=np.array([v.category[1] for v in invs] or [""], dtype=str)[: len(invs)],
+        inv_del_off=doff, inv_del=np.asarray([d for v in invs for d in v.undeleted], np.int64))
+
+
+def _inverses_from(z, active: tuple[int, ...]) -> dict[int, Inverse]:
+    """Inverse of ``_inverses_arrays``; KeyError / SceneError when absent or not these edits."""
+    edits = z["inv_edit"]
+    if tuple(edits.tolist()) != tuple(active):
+        raise SceneError("snapshot inverses are not the active edits")
+    off, pts, old, k = z["inv_off"], z["inv_points"], z["inv_old"], z["inv_k"]
+    cid, ctext, doff, dl = z["inv_cat_id"], z["inv_cat_text"], z["inv_del_off"], z["inv_del"]
+    return {int(e): Inverse(pts[off[j]:off[j + 1]], old[off[j]:off[j + 1]], int(k[j]),
+                            (int(cid[j]), str(ctext[j])), tuple(dl[doff[j]:doff[j + 1]].tolist()))
+            for j, e in enumerate(edits)}
 
 
 def _npz_len(path: Path) -> int:

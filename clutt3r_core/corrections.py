@@ -33,14 +33,48 @@ __all__ = [
     "apply",
     "op_to_json",
     "op_from_json",
+    "Inverse",
+    "apply_edit",
+    "revert",
+    "selection_fields",
+    "category_suggestions",
 ]
 
 
 def _int_tuple(values, what: str) -> tuple[int, ...]:
+    if isinstance(values, dict):  # the compact JSON form of a long selection (see op_to_json)
+        values = _expand_ranges(values.get("ranges", ()), what)
     a = np.asarray(values, dtype=np.int64).reshape(-1)
     if a.size and a.min() < 0:
         raise SceneError(f"{what}: indices must be >= 0")
-    return tuple(int(x) for x in a)
+    return tuple(a.tolist())  # tolist: ~20x faster than a generator for 100k-point selections
+
+
+def _ranges(values: tuple[int, ...]) -> list[int] | None:
+    """[start0, stop0, start1, stop1, ...] of the sorted unique ``values`` (half-open runs), or None
+    when that is not shorter than the list itself (scattered points)."""
+    if len(values) < 8:
+        return None
+    a = np.unique(np.asarray(values, np.int64))
+    if len(a) != len(values):
+        return None  # duplicates: keep the literal list so the op round-trips exactly
+    if not np.array_equal(a, np.asarray(values, np.int64)):
+        return None  # unsorted: same reason
+    brk = np.flatnonzero(np.diff(a) != 1) + 1
+    starts = np.concatenate([a[:1], a[brk]])
+    stops = np.concatenate([a[brk - 1] + 1, a[-1:] + 1])
+    if 2 * len(starts) >= len(a):
+        return None
+    return np.stack([starts, stops], 1).reshape(-1).tolist()
+
+
+def _expand_ranges(r, what: str) -> np.ndarray:
+    r = np.asarray(r, np.int64).reshape(-1)
+    if len(r) % 2 or (len(r) and ((r[1::2] < r[0::2]).any() or r.min() < 0)):
+        raise SceneError(f"{what}: bad ranges (want [start, stop, ...] with stop >= start >= 0)")
+    if not len(r):
+        return r
+    return np.concatenate([np.arange(a, b) for a, b in zip(r[0::2], r[1::2])])
 
 
 def _now() -> float:
@@ -75,16 +109,27 @@ class Relabel:
 
 @dataclass(frozen=True)
 class Merge:
-    """Instance ``other`` joins instance ``into``; ``other`` is deleted (its id is not reused)."""
+    """Instance ``other`` (and every id in ``others``) joins instance ``into``; the merged ids are
+    deleted (never reused). ``others`` lets one entry (one undo) merge a whole selection."""
 
     into: int
     other: int
     author: str = ""
     time: float = field(default_factory=_now)
+    others: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
-        if self.into == self.other:
+        object.__setattr__(self, "others", _int_tuple(self.others, "Merge.others"))
+        ids = (int(self.other),) + self.others
+        if int(self.into) in ids:
             raise SceneError(f"Merge: an instance cannot merge into itself (I{self.into})")
+        if len(set(ids)) != len(ids):
+            raise SceneError(f"Merge: an instance is listed twice ({list(ids)})")
+
+    @property
+    def merged(self) -> tuple[int, ...]:
+        """Every id that joins ``into``."""
+        return (int(self.other),) + self.others
 
 
 @dataclass(frozen=True)
@@ -160,7 +205,14 @@ def op_to_json(op: Op) -> dict:
     d: dict = {"op": _KIND_OF[type(op)]}
     for f in fields(op):
         v = getattr(op, f.name)
-        d[f.name] = list(v) if isinstance(v, tuple) else v
+        if isinstance(v, tuple):
+            if f.name == "others" and not v:
+                continue  # older readers know Merge without it
+            r = _ranges(v)
+            # a box selection is mostly runs of consecutive indices (points are stored in
+            # super-voxel order): [start, stop, ...] keeps a 100k-point selection to a few KB
+            v = {"ranges": r} if r is not None else list(v)
+        d[f.name] = v
     return d
 
 
@@ -331,10 +383,13 @@ def _apply_edit(base: BaseLabels, lab: CorrectedLabels, op: EditOp) -> Corrected
         inst = np.where(_selection(base, op.supervoxels, op.points, name), np.int32(op.target), inst)
     elif isinstance(op, Merge):
         _check_id(lab, int(op.into), name)
-        _check_id(lab, int(op.other), name)
-        inst = np.where(inst == op.other, np.int32(op.into), inst)
+        for o in op.merged:
+            _check_id(lab, o, name)
+        lut = np.arange(-1, lab.num_instances, dtype=np.int32)  # lut[k + 1] = new id of k
+        lut[np.asarray(op.merged) + 1] = np.int32(op.into)
+        inst = lut[inst + 1]
         deleted = deleted.copy()
-        deleted[op.other] = True
+        deleted[list(op.merged)] = True
     elif isinstance(op, Split):
         if op.source is not None:
             _check_id(lab, int(op.source), name, allow_none=True)
@@ -375,3 +430,94 @@ def apply(segmentation, ops) -> CorrectedLabels:
         except SceneError as e:
             raise SceneError(f"entry {i}: {e}") from None
     return lab
+
+
+# -- constant-time undo ----------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class Inverse:
+    """What one edit changed, enough to revert it in O(changed points + K) (no replay).
+
+    Valid only on the labels right after that edit (the editor's stack discipline guarantees it:
+    an edit is undone only when every later edit is undone).
+
+    Attributes:
+        points: (M,) int32 point indices whose instance the edit changed.
+        old: (M,) int32 their instance before the edit.
+        num_instances: K before the edit (a Split appended one id; truncated on revert).
+        category: (id, text before) of a SetCategory, (-1, "") otherwise.
+        undeleted: ids the edit marked deleted (Merge / Delete), cleared on revert.
+    """
+
+    points: np.ndarray
+    old: np.ndarray
+    num_instances: int
+    category: tuple[int, str] = (-1, "")
+    undeleted: tuple[int, ...] = ()
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "points", np.asarray(self.points, np.int32).reshape(-1))
+        object.__setattr__(self, "old", np.asarray(self.old, np.int32).reshape(-1))
+        if self.points.shape != self.old.shape:
+            raise SceneError("Inverse: points and old must have the same length")
+
+
+def apply_edit(base: BaseLabels, lab: CorrectedLabels, op: EditOp) -> tuple[CorrectedLabels, Inverse]:
+    """``op`` on ``lab`` (pure, new arrays) and its inverse. O(N) vectorised, whatever the history."""
+    new = _apply_edit(base, lab, op)
+    changed = np.flatnonzero(new.instance != lab.instance).astype(np.int32)
+    cat = (int(op.instance), lab.categories[op.instance]) if isinstance(op, SetCategory) else (-1, "")
+    und = (op.merged if isinstance(op, Merge) else (int(op.instance),) if isinstance(op, Delete) else ())
+    return new, Inverse(changed, lab.instance[changed], lab.num_instances, cat, tuple(und))
+
+
+def revert(lab: CorrectedLabels, inv: Inverse) -> CorrectedLabels:
+    """The labels before the edit whose inverse is ``inv`` (``lab``: the labels right after it)."""
+    inst = lab.instance.copy()
+    inst[inv.points] = inv.old
+    k = inv.num_instances
+    cats = list(lab.categories[:k])
+    if inv.category[0] >= 0:
+        cats[inv.category[0]] = inv.category[1]
+    deleted = lab.deleted[:k].copy()
+    if inv.undeleted:
+        deleted[list(inv.undeleted)] = False
+    return CorrectedLabels(inst, lab.scores[:k].copy(), tuple(cats), deleted)
+
+
+# -- selections ------------------------------------------------------------------------
+
+
+def selection_fields(base: BaseLabels, mask: np.ndarray) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """(supervoxels, points) naming exactly the points of the (N,) bool ``mask``: every super-voxel
+    the mask covers whole goes in by id (a click selection is a few ids), the rest as points (a box
+    selection cutting super-voxels; encoded as runs in the log, see ``op_to_json``)."""
+    mask = np.asarray(mask, bool)
+    if mask.shape != base.instance.shape:
+        raise SceneError(f"selection: mask of {mask.shape} for {len(base.instance)} points")
+    ks = base.num_supervoxels
+    total = np.bincount(base.sv_labels, minlength=ks)
+    picked = np.bincount(base.sv_labels[mask], minlength=ks)
+    whole = (picked == total) & (total > 0)
+    rest = mask & ~whole[base.sv_labels]
+    return tuple(np.flatnonzero(whole).tolist()), tuple(np.flatnonzero(rest).tolist())
+
+
+def category_suggestions(labels: CorrectedLabels, prefix: str = "", extra: tuple[str, ...] = ()) -> tuple[str, ...]:
+    """Category texts already used on live instances (most used first), then ``extra`` (e.g. the
+    run's query vocabulary), filtered by case-insensitive ``prefix``; no duplicates."""
+    counts: dict[str, int] = {}
+    for k in labels.alive:
+        c = labels.categories[k]
+        if c:
+            counts[c] = counts.get(c, 0) + 1
+    out = sorted(counts, key=lambda c: (-counts[c], c)) + [e for e in extra if e and e not in counts]
+    p = prefix.strip().lower()
+    seen: set[str] = set()
+    res = []
+    for c in out:
+        if c.lower().startswith(p) and c not in seen:
+            seen.add(c)
+            res.append(c)
+    return tuple(res)

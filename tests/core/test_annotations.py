@@ -213,7 +213,9 @@ def test_property_any_edit_undo_redo_sequence_replays_to_the_in_memory_state(act
         a = Annotations.open(run, author="prop")
         stack: list = []  # model: edits in effect
         redo: list = []
-        for act in actions:
+        for step, act in enumerate(actions):
+            if len(actions) % 3 == 0 and step == len(actions) // 2:
+                a.save()  # a checkpoint behind the log: reopening replays the tail (undos of older edits too)
             if act == "undo":
                 assert a.can_undo == bool(stack)
                 if stack:
@@ -452,3 +454,86 @@ def test_sigkill_at_random_moments_loses_no_acknowledged_op_and_no_snapshot(tmp_
     assert len(acked) > 10 and snapshot_seen
     print(f"\n{kills} kills, {len(acked)} acknowledged ops kept, {len(snapshot_seen)} snapshot versions, "
           f"{torn} torn tails recovered")
+
+
+# -- constant-time undo, checkpoints, compact selections (issue 12) ---------------------
+
+
+def test_undo_after_reopening_from_an_old_checkpoint_uses_its_stored_inverses(run, base):
+    with Annotations.open(run, author="t") as a:
+        a.apply_op(Split(supervoxels=(0, 1)))
+        a.apply_op(Merge(0, 2, others=(3,)))
+        a.apply_op(SetCategory(0, "bowl"))
+        a.save()  # checkpoint at 3 entries
+        a.undo()  # tail: undo of an edit the checkpoint covers
+        a.apply_op(Relabel(-1, points=tuple(range(5, 30))))
+        live = a.current
+    b = Annotations.open(run, author="t")
+    assert b.saved_ops == 3 and b.current.equals(live)
+    b.undo()
+    b.undo()  # reverts the Merge using the inverse read from the checkpoint, not a replay
+    assert b.current.equals(apply(base, [Split(supervoxels=(0, 1))]))
+    assert b.current.equals(apply(base, b.ops))
+    b.close()
+
+
+def test_a_snapshot_without_inverses_older_format_is_replayed_not_trusted(run, base):
+    with Annotations.open(run, author="t") as a:
+        a.apply_op(Delete(1))
+        a.save()
+    p = run / SNAPSHOT_NAME
+    with np.load(p) as z:
+        arrays = {k: z[k] for k in z.files if not k.startswith("inv_")}
+    p.write_bytes(_npz(**arrays))
+    b = Annotations.open(run)
+    assert b.saved_ops == 0 and b.current.equals(apply(base, [Delete(1)]))
+    b.undo()
+    assert b.current.equals(apply(base, []))
+    b.close()
+
+
+def test_long_point_selections_are_stored_as_runs_and_round_trip():
+    pts = tuple(range(1000, 50_000)) + tuple(range(60_000, 60_010))
+    op = Relabel(2, points=pts, author="a", time=1.0)
+    d = op_to_json(op)
+    assert d["points"] == {"ranges": [1000, 50_000, 60_000, 60_010]}
+    assert len(json.dumps(d)) < 200 and op_from_json(json.loads(json.dumps(d))) == op
+    scattered = Relabel(2, points=(5, 3, 9), author="a", time=1.0)  # unsorted: kept literally
+    assert op_to_json(scattered)["points"] == [5, 3, 9]
+    with pytest.raises(SceneError):
+        op_from_json({"op": "relabel", "target": 1, "points": {"ranges": [5, 2]}})
+
+
+def test_merge_of_several_instances_is_one_entry(base):
+    lab = apply(base, [Merge(0, 1, others=(2, 3))])
+    assert lab.deleted[1:4].all() and set(np.unique(lab.instance)) <= {-1, 0}
+    assert (lab.instance == 0).sum() == (base.instance >= 0).sum()
+    with pytest.raises(SceneError):
+        Merge(0, 1, others=(0,))
+    with pytest.raises(SceneError):
+        Merge(0, 1, others=(1,))
+    assert "others" not in op_to_json(Merge(0, 1))  # older logs and readers: unchanged form
+
+
+def test_selection_fields_name_exactly_the_mask(base):
+    from clutt3r_core.corrections import selection_fields
+
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        mask = rng.random(len(base.instance)) < rng.random()
+        mask |= base.sv_labels == rng.integers(0, base.num_supervoxels)  # one whole super-voxel
+        sv, pts = selection_fields(base, mask)
+        again = np.isin(base.sv_labels, sv)
+        again[list(pts)] = True
+        assert np.array_equal(again, mask) and len(sv) >= 1
+        assert not np.isin(base.sv_labels[list(pts)], sv).any()  # no point named twice
+
+
+def test_category_suggestions_most_used_first_then_extra(base):
+    from clutt3r_core.corrections import category_suggestions
+
+    lab = apply(base, [SetCategory(0, "mug"), SetCategory(1, "bowl"), SetCategory(2, "mug")])
+    assert category_suggestions(lab) == ("mug", "bowl")
+    assert category_suggestions(lab, "b", extra=("banana", "mug")) == ("bowl", "banana")
+    lab = apply(base, [SetCategory(0, "mug"), Delete(0)])
+    assert category_suggestions(lab) == ()  # deleted instances do not suggest
