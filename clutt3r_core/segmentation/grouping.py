@@ -19,7 +19,7 @@ in that order, so the result does not depend on the order masks or views arrive 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -38,11 +38,23 @@ __all__ = [
     "group_nodes",
     "substitute_residuals",
     "run_grouping",
+    "StageStop",
+    "BlockedPairs",
+    "ResidualNotes",
+    "BLOCK_RULES",
+    "RESIDUAL_REASONS",
 ]
 
 STAGE_SPATIAL = 0
 STAGE_SEMANTIC = 1
 STAGE_NAMES = ("spatial", "semantic")
+
+BLOCK_RULES = ("none", "one_mask_per_view", "overlap_gate")
+"""Codes of ``BlockedPairs.rule``: the rule that kept a pair whose score was >= tau out of the merge."""
+RULE_VIEW, RULE_GATE = 1, 2
+
+RESIDUAL_REASONS = ("substituted", "root", "parent_background", "sibling_grouped", "parent_taken")
+"""Codes of ``ResidualNotes.reason``: why a residual leaf was not replaced by its tree parent."""
 
 
 @dataclass(frozen=True)
@@ -151,15 +163,105 @@ class Substitution:
     replaced: tuple[int, ...]
 
 
+@dataclass(frozen=True)
+class StageStop:
+    """Why one stage of one round stopped merging (recorded for explanations, not used by the algorithm).
+
+    ``event`` is the number of events (``GroupingResult.events``) done when it stopped, so
+    ``Trace.groups_at(event)`` are the groups it left. ``best_score`` is the best score among
+    the pairs the rules allowed (NaN when no pair was left), below ``tau``; ``best_a``/``best_b``
+    are the first members of that pair (-1 = none). ``blocked_score`` is the best score among
+    pairs a rule excluded (NaN = none), ``blocked_rule`` that rule (``BLOCK_RULES``).
+    """
+
+    stage: str
+    round: int
+    event: int
+    n_groups: int
+    tau: float
+    best_score: float
+    best_a: int
+    best_b: int
+    blocked_score: float
+    blocked_rule: str
+
+
+@dataclass(frozen=True, eq=False)
+class BlockedPairs:
+    """Group pairs that a rule kept apart although their score reached the stage's tau.
+
+    Recorded at each stage stop (``stop`` indexes ``GroupingResult.stops``): the groups
+    are those of ``Trace.groups_at(stops[stop].event)``, named by their first member
+    (node index). Only pairs with score >= tau are kept: every other pair was also kept
+    apart by the threshold, which ``explain_pair`` recomputes from the leaf graph.
+
+    Attributes:
+        stop: (P,) int32 index into the stops.
+        a, b: (P,) int32 first members of the two groups (a < b).
+        rule: (P,) int8 ``BLOCK_RULES`` code.
+        score: (P,) float32 the stage's mean-linkage score of the pair (unitless, in [-1, 1]).
+    """
+
+    stop: np.ndarray
+    a: np.ndarray
+    b: np.ndarray
+    rule: np.ndarray
+    score: np.ndarray
+
+    def __post_init__(self) -> None:
+        n = len(self.stop)
+        for name in ("a", "b", "rule", "score"):
+            if getattr(self, name).shape != (n,):
+                raise SceneError(f"BlockedPairs.{name} must have shape ({n},)")
+
+    @staticmethod
+    def concat(parts: list["BlockedPairs"]) -> "BlockedPairs":
+        cat = lambda name, dt: np.concatenate([getattr(p, name) for p in parts]).astype(dt) if parts \
+            else np.zeros(0, dt)  # noqa: E731
+        return BlockedPairs(cat("stop", np.int32), cat("a", np.int32), cat("b", np.int32), cat("rule", np.int8),
+                            cat("score", np.float32))
+
+
+@dataclass(frozen=True, eq=False)
+class ResidualNotes:
+    """Every residual (a leaf alone in its group) the substitution examined and kept.
+
+    Attributes:
+        node: (R,) int32 the residual leaf.
+        round: (R,) int32 substitution round.
+        reason: (R,) int8 ``RESIDUAL_REASONS`` code (never 0: substituted leaves are in ``substitutions``).
+        other: (R,) int32 the parent (``parent_background``, ``parent_taken``) or the grouped
+            leaf under the parent (``sibling_grouped``); -1 for ``root``.
+    """
+
+    node: np.ndarray
+    round: np.ndarray
+    reason: np.ndarray
+    other: np.ndarray
+
+    def __post_init__(self) -> None:
+        n = len(self.node)
+        for name in ("round", "reason", "other"):
+            if getattr(self, name).shape != (n,):
+                raise SceneError(f"ResidualNotes.{name} must have shape ({n},)")
+
+
 @dataclass(frozen=True, eq=False)
 class GroupingResult:
-    """Final groups and every step that produced them."""
+    """Final groups and every step that produced them.
+
+    ``stops``, ``blocked`` and ``residuals`` explain decisions not taken; they are None in
+    traces written before they were recorded.
+    """
 
     groups: tuple[tuple[int, ...], ...]
     merges: tuple[MergeStep, ...]
     substitutions: tuple[Substitution, ...]
     events: tuple[tuple[str, int], ...] = field(default=())
     """Order of all steps: ("merge", i) or ("substitution", j) indices into the two lists."""
+    stops: tuple[StageStop, ...] | None = None
+    blocked: BlockedPairs | None = None
+    residuals: ResidualNotes | None = None
 
 
 def spatial_similarity(occupancy: np.ndarray, weights: np.ndarray, eps: float = 1e-9) -> np.ndarray:
@@ -268,11 +370,14 @@ def group_nodes(
     n_views: int,
     cfg: GroupingConfig,
     round_: int = 0,
+    record: "list[tuple[StageStop, BlockedPairs]] | None" = None,
 ) -> tuple[list[list[int]], list[MergeStep]]:
     """GroupBySimilarity (Algorithm 1): stage 1 on S_spatial, then stage 2 on S_semantic.
 
     ``groups`` is the starting partition (node index lists); returns the final
-    partition (sorted by first member) and the merges in order.
+    partition (sorted by first member) and the merges in order. With ``record`` (a list),
+    each stage appends why it stopped (``StageStop`` with ``event`` = merges so far in this
+    call, and the pairs a rule blocked); recording never changes the result.
     """
     state = _Groups(groups, sim.s_spatial, sim.s_semantic, view, n_views)
     steps: list[MergeStep] = []
@@ -282,14 +387,20 @@ def group_nodes(
     if cfg.use_semantic:
         stages.append((STAGE_SEMANTIC, cfg.tau_sem))
     for stage, tau in stages:
-        while len(state.members) > 1:
-            valid = state.valid(cfg.one_mask_per_view)
+        while True:
+            if len(state.members) <= 1:
+                if record is not None:
+                    record.append(_stop_record(state, stage, tau, round_, len(steps), None, None))
+                break
+            valid = view_ok = state.valid(cfg.one_mask_per_view)
             if stage == STAGE_SEMANTIC and cfg.semantic_needs_overlap:
-                valid &= state.mean(STAGE_SPATIAL) > 0.0
+                valid = valid & (state.mean(STAGE_SPATIAL) > 0.0)
             score = np.where(valid, state.mean(stage), -np.inf)
             flat = int(np.argmax(score))  # first maximum in canonical order
             best = score.flat[flat]
             if not np.isfinite(best) or best < tau:
+                if record is not None:
+                    record.append(_stop_record(state, stage, tau, round_, len(steps), view_ok, valid))
                 break
             i, j = divmod(flat, score.shape[1])
             steps.append(
@@ -307,15 +418,48 @@ def group_nodes(
     return state.members, steps
 
 
+def _stop_record(state: _Groups, stage: int, tau: float, round_: int, n_steps: int,
+                 view_ok: np.ndarray | None, valid: np.ndarray | None) -> tuple[StageStop, BlockedPairs]:
+    """Why a stage stopped: its best allowed score and the pairs >= tau that a rule excluded."""
+    first = np.array([m[0] for m in state.members], np.int32)
+    none = BlockedPairs(*(np.zeros(0, dt) for dt in (np.int32, np.int32, np.int32, np.int8, np.float32)))
+    if view_ok is None or valid is None:
+        return StageStop(STAGE_NAMES[stage], round_, n_steps, len(first), float(tau), float("nan"), -1, -1,
+                         float("nan"), BLOCK_RULES[0]), none
+    mean = state.mean(stage)
+    pair = np.triu(np.ones(mean.shape, bool), 1)
+    rule = np.zeros(mean.shape, np.int8)
+    rule[pair & ~view_ok] = RULE_VIEW
+    rule[pair & view_ok & ~valid] = RULE_GATE
+    allowed = np.where(valid, mean, -np.inf)
+    flat = int(np.argmax(allowed))
+    best = float(allowed.flat[flat])
+    bi, bj = divmod(flat, mean.shape[1])
+    blocked = np.where(rule > 0, mean, -np.inf)
+    bflat = int(np.argmax(blocked))
+    bbest = float(blocked.flat[bflat])
+    stop = StageStop(
+        stage=STAGE_NAMES[stage], round=round_, event=n_steps, n_groups=len(first), tau=float(tau),
+        best_score=best if np.isfinite(best) else float("nan"),
+        best_a=int(first[bi]) if np.isfinite(best) else -1, best_b=int(first[bj]) if np.isfinite(best) else -1,
+        blocked_score=bbest if np.isfinite(bbest) else float("nan"),
+        blocked_rule=BLOCK_RULES[int(rule.flat[bflat])] if np.isfinite(bbest) else BLOCK_RULES[0],
+    )
+    ii, jj = np.nonzero((rule > 0) & (mean >= tau))
+    return stop, BlockedPairs(np.zeros(len(ii), np.int32), first[ii], first[jj], rule[ii, jj],
+                              mean[ii, jj].astype(np.float32))
+
+
 def substitute_residuals(
-    groups: list[list[int]], nodes: NodeTable, round_: int
+    groups: list[list[int]], nodes: NodeTable, round_: int, notes: "list[ResidualNotes] | None" = None
 ) -> tuple[list[list[int]], list[Substitution]]:
     """Residual-node parent substitution (Sec. III-B.3).
 
     A residual is a node left alone in its group. A residual is replaced by its tree
     parent only when every leaf below that parent is residual (so at most one proper
     segment stays on each root-to-leaf path); all of those residual leaves make way
-    for the one parent node. Background parents are never substituted in.
+    for the one parent node. Background parents are never substituted in. With ``notes`` (a
+    list), appends why each residual that stays was not substituted (record only).
     """
     residual = {g[0] for g in groups if len(g) == 1}
     desc = nodes.descendant_leaves()
@@ -334,12 +478,35 @@ def substitute_residuals(
             subs.append(Substitution(round=round_, parent=p, replaced=gone))
             used_parents.add(p)
             replaced.update(gone)
+    if notes is not None:
+        notes.append(_residual_notes(residual, replaced, used_parents, desc, nodes, round_))
     if not subs:
         return groups, subs
     new = [g for g in groups if not (len(g) == 1 and g[0] in replaced)]
     new += [[s.parent] for s in subs]
     new.sort(key=lambda g: g[0])
     return new, subs
+
+
+def _residual_notes(residual: set[int], replaced: set[int], used: set[int], desc: list[np.ndarray],
+                    nodes: NodeTable, round_: int) -> ResidualNotes:
+    """Why each residual in ``residual - replaced`` kept its place (the tests of substitute_residuals)."""
+    rows = []
+    for r in sorted(residual - replaced):
+        p = int(nodes.parent[r])
+        if p < 0:
+            rows.append((r, 1, -1))
+        elif nodes.background[p]:
+            rows.append((r, 2, p))
+        elif p in used:
+            rows.append((r, 4, p))
+        else:
+            below = [int(x) for x in desc[p] if not nodes.background[x]]
+            other = next((x for x in below if not (x in residual or _stands_in(x, residual, nodes))), -1)
+            rows.append((r, 3, other))
+    a = np.array(rows, np.int64).reshape(-1, 3)
+    return ResidualNotes(a[:, 0].astype(np.int32), np.full(len(a), round_, np.int32), a[:, 1].astype(np.int8),
+                         a[:, 2].astype(np.int32))
 
 
 def _in_subtree(x: int, root: int, nodes: NodeTable) -> bool:
@@ -364,17 +531,32 @@ def _stands_in(leaf: int, residual: set[int], nodes: NodeTable) -> bool:
 def run_grouping(nodes: NodeTable, sim: SimilarityGraph, n_views: int, cfg: GroupingConfig) -> GroupingResult:
     """Algorithm 1 plus substitution and regrouping. Background nodes never take part."""
     start = [[int(i)] for i in np.flatnonzero(nodes.is_leaf & ~nodes.background)]
-    groups, merges = group_nodes(start, sim, nodes.view, n_views, cfg, round_=0)
+    stops: list[StageStop] = []
+    blocked: list[BlockedPairs] = []
+    notes: list[ResidualNotes] = []
+
+    def keep(rec: list[tuple[StageStop, BlockedPairs]], offset: int) -> None:
+        # event counts and stop indices of this call become global ones
+        for stop, bp in rec:
+            stops.append(replace(stop, event=stop.event + offset))
+            blocked.append(replace(bp, stop=np.full(len(bp.a), len(stops) - 1, np.int32)))
+
+    rec: list[tuple[StageStop, BlockedPairs]] = []
+    groups, merges = group_nodes(start, sim, nodes.view, n_views, cfg, round_=0, record=rec)
+    keep(rec, 0)
     events: list[tuple[str, int]] = [("merge", i) for i in range(len(merges))]
     subs_all: list[Substitution] = []
     if cfg.substitution:
         for rnd in range(1, cfg.substitution_rounds + 1):
-            groups, subs = substitute_residuals(groups, nodes, rnd)
+            groups, subs = substitute_residuals(groups, nodes, rnd, notes=notes)
             if not subs:
                 break
             events += [("substitution", len(subs_all) + k) for k in range(len(subs))]
             subs_all += subs
-            groups, more = group_nodes(groups, sim, nodes.view, n_views, cfg, round_=rnd)
+            rec = []
+            offset = len(events)
+            groups, more = group_nodes(groups, sim, nodes.view, n_views, cfg, round_=rnd, record=rec)
+            keep(rec, offset)
             events += [("merge", len(merges) + k) for k in range(len(more))]
             merges += more
     if cfg.reunion_tau > 0:
@@ -387,6 +569,11 @@ def run_grouping(nodes: NodeTable, sim: SimilarityGraph, n_views: int, cfg: Grou
         merges=tuple(merges),
         substitutions=tuple(subs_all),
         events=tuple(events),
+        stops=tuple(stops),
+        blocked=BlockedPairs.concat(blocked),
+        residuals=ResidualNotes(*(np.concatenate([getattr(n, f) for n in notes]) if notes else np.zeros(0, dt)
+                                  for f, dt in (("node", np.int32), ("round", np.int32), ("reason", np.int8),
+                                                ("other", np.int32)))),
     )
 
 

@@ -21,7 +21,15 @@ import numpy as np
 from clutt3r_core.config import SegmentConfig, config_from_json, config_to_json
 from clutt3r_core.errors import SceneError, SceneFileError
 from clutt3r_core.io.images import atomic_write_bytes, atomic_write_npz
-from clutt3r_core.segmentation.grouping import GroupingResult, MergeStep, NodeTable, Substitution
+from clutt3r_core.segmentation.grouping import (
+    BlockedPairs,
+    GroupingResult,
+    MergeStep,
+    NodeTable,
+    ResidualNotes,
+    StageStop,
+    Substitution,
+)
 from clutt3r_core.segmentation.trees import InstanceTree
 from clutt3r_core.segmentation.vote import VoteResult
 
@@ -166,8 +174,16 @@ def save_trace(trace: Trace, folder: str | Path) -> Path:
         "sv_runner_up": v.sv_runner_up, "sv_coverage": v.sv_coverage,
         "instance_group": v.instance_group, "scores": v.scores,
     }
-    atomic_write_npz(folder / "trace.npz", **arrays)
+    # explanations of decisions not taken (absent in older traces; load_trace leaves them None)
+    if v.sv_reason is not None:
+        arrays.update(sv_top_group=v.sv_top_group, sv_top_vote=v.sv_top_vote.astype(np.float16),
+                      sv_reason=v.sv_reason, group_points=v.group_points)
     g = trace.grouping
+    if g.blocked is not None:
+        arrays.update({f"blocked_{f}": getattr(g.blocked, f) for f in ("stop", "a", "b", "rule", "score")})
+    if g.residuals is not None:
+        arrays.update({f"residual_{f}": getattr(g.residuals, f) for f in ("node", "round", "reason", "other")})
+    atomic_write_npz(folder / "trace.npz", **arrays)
     meta = {
         "version": TRACE_VERSION,
         "embedder": trace.embedder,
@@ -179,6 +195,9 @@ def save_trace(trace: Trace, folder: str | Path) -> Path:
         "timings": [asdict(t) for t in trace.timings],
         "config": config_to_json(trace.config),
     }
+    if g.stops is not None:  # NaN (no pair left) is written as null: strict JSON
+        meta["stops"] = [{k: (None if isinstance(x, float) and x != x else x) for k, x in asdict(st).items()}
+                         for st in g.stops]
     atomic_write_bytes(folder / "trace.json", json.dumps(meta, indent=1).encode())
     return folder
 
@@ -216,10 +235,19 @@ def load_trace(folder: str | Path) -> Trace:
         merges=tuple(MergeStep(**{**m, "a": tup(m["a"]), "b": tup(m["b"])}) for m in meta["merges"]),
         substitutions=tuple(Substitution(**{**s, "replaced": tup(s["replaced"])}) for s in meta["substitutions"]),
         events=tuple((str(k), int(i)) for k, i in meta["events"]),
+        stops=tuple(StageStop(**{k: (float("nan") if x is None else x) for k, x in st.items()})
+                    for st in meta["stops"]) if "stops" in meta else None,
+        blocked=BlockedPairs(*(z[f"blocked_{f}"] for f in ("stop", "a", "b", "rule", "score")))
+        if "blocked_stop" in z else None,
+        residuals=ResidualNotes(*(z[f"residual_{f}"] for f in ("node", "round", "reason", "other")))
+        if "residual_node" in z else None,
     )
     vote = VoteResult(
         sv_label=z["sv_label"], sv_group=z["sv_group"], sv_vote=z["sv_vote"], sv_runner_up=z["sv_runner_up"],
         sv_coverage=z["sv_coverage"], instance_group=z["instance_group"], scores=z["scores"],
+        sv_top_group=z.get("sv_top_group"),
+        sv_top_vote=z["sv_top_vote"].astype(np.float32) if "sv_top_vote" in z else None,
+        sv_reason=z.get("sv_reason"), group_points=z.get("group_points"),
     )
     return Trace(
         frames=z["frames"],

@@ -19,7 +19,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["VoteConfig", "VoteResult", "supervoxel_vote", "renumber_by_score"]
+__all__ = ["VoteConfig", "VoteResult", "supervoxel_vote", "renumber_by_score", "VOTE_REASONS"]
+
+VOTE_REASONS = ("labelled", "no_vote", "support", "coverage", "group_dropped")
+"""Codes of ``VoteResult.sv_reason``, in the order the vote applies them: no group's masks
+touch the super-voxel; it is support (table, tray) and ``label_support`` is off; the winner's
+best mask covers less than ``min_coverage`` of it; the winning group is not an instance
+(fewer than ``min_group_size`` masks or ``min_instance_points`` points)."""
 
 
 @dataclass(frozen=True)
@@ -48,6 +54,14 @@ class VoteResult:
         sv_coverage: (K,) float32 best single-mask coverage of the winner.
         instance_group: (I,) int32 group index of each instance; instances are sorted by descending score.
         scores: (I,) float32 instance confidences.
+
+    Recorded for explanations (None in traces written before they were):
+        sv_top_group: (K, 3) int32 the three groups with the largest vote sum_i o_i(k), counting
+            every group (also those below ``min_group_size``, which do not vote), -1 = none.
+        sv_top_vote: (K, 3) float32 their votes (sum of occupancies, unitless).
+        sv_reason: (K,) int8 why the super-voxel ended as it did (``VOTE_REASONS``).
+        group_points: (G,) float32 raw points in the super-voxels each group won (the
+            ``min_instance_points`` filter reads this).
     """
 
     sv_label: np.ndarray
@@ -57,6 +71,10 @@ class VoteResult:
     sv_coverage: np.ndarray
     instance_group: np.ndarray
     scores: np.ndarray
+    sv_top_group: np.ndarray | None = None
+    sv_top_vote: np.ndarray | None = None
+    sv_reason: np.ndarray | None = None
+    group_points: np.ndarray | None = None
 
 
 def renumber_by_score(label: np.ndarray, score: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -94,11 +112,13 @@ def supervoxel_vote(
     sizes = np.array([len(m) for m in groups], np.int64)
     eligible = sizes >= cfg.min_group_size
     votes = np.zeros((g, k), np.float32)
+    raw = np.zeros((g, k), np.float32)  # every group's vote, also the ineligible ones (recorded only)
     best_cov = np.zeros((g, k), np.float32)
     for i, members in enumerate(groups):
+        occ = occupancy[list(members)]
+        raw[i] = occ.sum(axis=0)
         if eligible[i]:
-            occ = occupancy[list(members)]
-            votes[i] = occ.sum(axis=0)
+            votes[i] = raw[i]
             best_cov[i] = occ.max(axis=0)
     if g:
         order = np.argsort(-votes, axis=0, kind="stable")
@@ -128,6 +148,19 @@ def supervoxel_vote(
         conf[i] = len(m) / max(n_views, 1) + 1e-3 * internal
     points = np.bincount(chosen[chosen >= 0], weights=sv_counts[chosen >= 0], minlength=g) if g else np.zeros(0)
     sv_label, alive = renumber_by_score(chosen, conf, eligible & (points >= cfg.min_instance_points))
+    # record only: the top three of every group's vote and why each super-voxel ended as it did
+    top = np.argsort(-raw, axis=0, kind="stable")[:3] if g else np.zeros((0, k), np.int64)
+    top_vote = np.take_along_axis(raw, top, axis=0) if g else np.zeros((0, k), np.float32)
+    top_group = np.where(top_vote > 0, top, -1)
+    pad = 3 - len(top)
+    top_group = np.concatenate([top_group, np.full((pad, k), -1)]).T.astype(np.int32)
+    top_vote = np.concatenate([np.where(top_vote > 0, top_vote, 0), np.zeros((pad, k))]).T.astype(np.float32)
+    reason = np.full(k, VOTE_REASONS.index("group_dropped"), np.int8)
+    reason[sv_label >= 0] = VOTE_REASONS.index("labelled")
+    reason[(sv_label < 0) & has_vote & (cov < cfg.min_coverage)] = VOTE_REASONS.index("coverage")
+    if not cfg.label_support:
+        reason[has_vote & support] = VOTE_REASONS.index("support")
+    reason[~has_vote] = VOTE_REASONS.index("no_vote")
     return VoteResult(
         sv_label=sv_label,
         sv_group=sv_group,
@@ -136,4 +169,8 @@ def supervoxel_vote(
         sv_coverage=np.asarray(cov, np.float32),
         instance_group=alive.astype(np.int32),
         scores=conf[alive].astype(np.float32),
+        sv_top_group=top_group,
+        sv_top_vote=top_vote,
+        sv_reason=reason,
+        group_points=np.asarray(points, np.float32),
     )
