@@ -131,3 +131,11 @@ def test_no_depth_files_at_all_says_why_there_is_nothing_to_segment(scene_dir, t
     assert code == 2
     assert err.strip().endswith("no initial views to segment (frames [0, 1, 2] have no depth file, so they were"
                                 " taken as post-interaction)"), err
+
+
+def test_unwritable_output_path_is_named(scene_dir, tmp_path, capfd):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    code, _, err = _main(["segment", str(scene_dir), "--out", str(blocker / "run")], capfd)
+    assert code == 2 and err.count("\n") == 1
+    assert err.startswith(f"clutt3r: error: {blocker}") and "Not a directory" in err, err
