@@ -184,14 +184,28 @@ def main() -> None:
                                  "ms_per_mask": 1e3 * float(np.sum(embed_s) / max(np.sum(n_masks), 1))}
     if args.sweep:
         grid = []
+        # the sweep re-scores the same phrases many times: embed each once
+        memo: dict[str, np.ndarray] = {}
+        embed = grounder.embed_text
+    
+        def embed_memo(texts):
+            for x in texts:
+                if x not in memo:
+                    memo[x] = embed([x])[0]
+            return np.stack([memo[x] for x in texts])
+    
+        grounder.embed_text = embed_memo
         for center in (True, False):
             for temp in (0.02, 0.05, 0.1):
                 for cw in (0.0, 1.0, 2.0, 3.0):
-                    for margin in (0.25, 0.5, 0.75, 1.0):
-                        r = evaluate(cases, QueryConfig(temperature=temp, color_weight=cw, confident_margin=margin,
-                                                        center=center))
-                        grid.append({"center": center, "temperature": temp, "color_weight": cw, "margin": margin,
-                                     **{k: r[k] for k in ("name", "colour + name", "absent") if k in r}})
+                    for gate in (0.0, 0.4, 0.55):
+                        for margin in (0.25, 0.5, 0.75, 1.0):
+                            cfg = QueryConfig(temperature=temp, color_weight=cw, confident_margin=margin,
+                                              center=center, name_gate=gate)
+                            r = evaluate(cases, cfg)
+                            grid.append({"center": center, "temperature": temp, "color_weight": cw, "gate": gate,
+                                         "margin": margin,
+                                         **{k: r[k] for k in ("name", "colour + name", "absent") if k in r}})
         report["sweep"] = grid
     if args.cli:
         run_dir = args.work / f"{args.presets[0]}-{args.seeds[0]}" / "run"

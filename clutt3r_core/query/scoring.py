@@ -64,6 +64,10 @@ class QueryConfig:
     over the classes. Without it a vague query (q spread over many classes) favours the
     instance whose prediction is flattest, since the mean of log p is largest for a flat p
     (ours: bench_query, both variants)."""
+    name_gate: float = 0.0
+    """Label mode: the name term is scaled by clip((m - name_gate) / 0.3, 0, 1), m the best
+    cosine of the query's name with a class name; a name the image model has no class for
+    ("plum" -> "plunger", m about 0.4) then weighs little. 0 = off (ours: bench_query)."""
     explain_classes: int = 3
     """Class names listed in each instance's explanation."""
 
@@ -170,6 +174,8 @@ class QueryResult:
     explanations: tuple[Explanation, ...]
     backend: str
     time_s: float = 0.0
+    name_match: float = float("nan")
+    """Label mode: best cosine of the query's name with a label (1 = the name is a class)."""
 
     def __post_init__(self) -> None:
         if self.scores.shape != (len(self.explanations),) or sorted(self.ranking) != list(range(len(self.scores))):
@@ -213,11 +219,14 @@ def score_instances(
     k = inst.num_instances
     raw = np.zeros(k, np.float64)
     q = None
+    name_match = float("nan")
     if name_embedding is not None and k:
         t = np.asarray(name_embedding, np.float64).reshape(-1)
         t = t / max(float(np.linalg.norm(t)), 1e-12)
         if label_embeddings is not None:
-            s = label_embeddings.astype(np.float64) @ t / config.temperature
+            cos = label_embeddings.astype(np.float64) @ t
+            name_match = float(cos.max())
+            s = cos / config.temperature
             q = np.exp(s - s.max())
             q /= q.sum()
             lp = inst.grounding.astype(np.float64)
@@ -229,6 +238,8 @@ def score_instances(
                 raise SceneError(f"text embedding has {t.shape[0]} dims, instance evidence {inst.grounding.shape[1]}")
             raw = inst.grounding.astype(np.float64) @ t
     name = _zscore(raw)
+    if q is not None and config.name_gate > 0:
+        name = name * float(np.clip((name_match - config.name_gate) / 0.3, 0.0, 1.0))
     cidx = [COLOR_WORDS.index(c) for c in query.colors]
     share = inst.colors[:, cidx].astype(np.float64) if cidx else np.zeros((k, 0))
     color = config.color_weight * share.mean(axis=1) if cidx else np.zeros(k)
@@ -257,4 +268,5 @@ def score_instances(
         dom = np.argsort(-inst.colors[i])[:2]
         expl.append(Explanation(float(name[i]), float(color[i]), classes, looks, cols,
                                 tuple((COLOR_WORDS[c], float(inst.colors[i, c])) for c in dom)))
-    return QueryResult(query.text, score.astype(np.float32), ranking, target, confident, tuple(expl), backend)
+    return QueryResult(query.text, score.astype(np.float32), ranking, target, confident, tuple(expl), backend,
+                       name_match=name_match)
