@@ -31,6 +31,7 @@ _CORE_COMMANDS: dict[str, str] = {
     "grasp": "clutt3r_core.commands.grasp:grasp_command",
     "query": "clutt3r_core.commands.query:query_command",
     "update": "clutt3r_core.commands.update:update_command",
+    "export-gt": "clutt3r_core.commands.export_gt:export_gt_command",
 }
 
 
