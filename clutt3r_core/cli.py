@@ -32,6 +32,7 @@ _CORE_COMMANDS: dict[str, str] = {
     "query": "clutt3r_core.commands.query:query_command",
     "update": "clutt3r_core.commands.update:update_command",
     "export-gt": "clutt3r_core.commands.export_gt:export_gt_command",
+    "explain": "clutt3r_core.commands.explain:explain_command",
 }
 
 

@@ -343,7 +343,7 @@ def _absent_rule(t: Trace, i: int) -> str:
 def _diverge_step(ha, hb, views, apart: list[StageCheck], rule: str) -> int:
     """The step from which they could no longer come together: their groups started to share a
     view, else the last stop that left them apart (their last chance)."""
-    if rule == "same_view":
+    if rule in ("same_view", "background", "not_grouped"):
         return 0
     steps = sorted({h.step for h in (*ha, *hb)})
     for s in steps:
