@@ -130,6 +130,10 @@ class Session:
         if layer is None or not layer.available(inp, st):
             layer = COLOR_LAYERS[0]
         col = layer.colors(inp, st)
+        for p in self.panels:  # view-only overlays a panel keeps (the Edit tab's hidden instances)
+            over = getattr(p, "overlay_colors", None)
+            if over is not None:
+                col = over(self, col)
         if st.node >= 0:
             sel = self.app.data.node_points(st.node)[self.lod_idx]
             col = (col * 0.35).astype(np.uint8)
