@@ -11,7 +11,7 @@ resized back with nearest neighbour):
    dominant plane whose normal is within ``max_plane_tilt_deg`` of world z (world z is up,
    docs/conventions.md); up to ``extra_planes`` further planes parallel to it and
    covering at least ``extra_plane_frac`` of the valid pixels are removed too (a tray floor
-   or bin bottom above the table). Pixels closer than ``min_height`` to the first plane or
+   or bin bottom above the table, at most ``max_support_lift`` up). Pixels closer than ``min_height`` to the first plane or
    below it are support.
 2. **Coarse regions** (the parents, like Grounded SAM's under-segmented clusters):
    connected components of the remaining pixels, two 4-neighbours joined when their 3D
@@ -65,6 +65,8 @@ class BuiltinMaskConfig:
         max_plane_tilt_deg: a support plane's normal is within this angle of world z, degrees.
         extra_planes: further support planes parallel to the first (tray floor, bin bottom).
         extra_plane_frac: an extra plane must hold this fraction of the valid pixels.
+        max_support_lift: ...and lie at most this high above the first plane, metres (a tray
+            floor is 1-2 cm up; the top of a box lying flat is usually higher).
         min_height: pixels closer than this to the first plane (or below it) are support, metres.
         coarse_jump_px: two neighbour pixels are connected in the coarse step when their 3D
             distance is below this many pixel footprints (depth / focal length)...
@@ -93,7 +95,8 @@ class BuiltinMaskConfig:
     plane_tol: float = 0.006
     max_plane_tilt_deg: float = 35.0
     extra_planes: int = 2
-    extra_plane_frac: float = 0.08
+    extra_plane_frac: float = 0.02
+    max_support_lift: float = 0.03
     min_height: float = 0.006
     coarse_jump_px: float = 6.0
     coarse_jump_min: float = 0.008
@@ -327,8 +330,9 @@ def builtin_candidates(view: View, cfg: BuiltinMaskConfig = BuiltinMaskConfig(),
         height = (P.reshape(-1, 3) @ plane.normal + plane.offset).reshape(h, w)
         fg &= height > cfg.min_height
         rest = fg.copy()
+        low = height < cfg.max_support_lift  # a tray floor is low; an object's flat top usually is not
         for _ in range(cfg.extra_planes):
-            extra = fit_support_plane(P, rest, None, cfg, rng, parallel_to=plane.normal)
+            extra = fit_support_plane(P, rest & low, None, cfg, rng, parallel_to=plane.normal)
             if extra is None or extra.inliers.sum() < cfg.extra_plane_frac * valid.sum():
                 break
             rest &= ~extra.inliers
