@@ -25,7 +25,7 @@ from typing import Protocol, runtime_checkable
 
 from clutt3r_core.scene import MaskCandidates, Scene, View
 
-__all__ = ["MaskGenerator", "create_mask_generator", "fill_masks", "write_masks", "scene_has_masks"]
+__all__ = ["MaskGenerator", "create_mask_generator", "fill_masks", "write_masks", "scene_has_masks", "with_run_masks"]
 
 
 @runtime_checkable
@@ -83,3 +83,19 @@ def write_masks(scene: Scene, folder: str | Path, *, views: str = "initial") -> 
         if v.masks is not None:
             out += write_png_masks(folder, v.frame, v.masks)
     return out
+
+
+def with_run_masks(scene: Scene, run_dir: str | Path) -> Scene:
+    """The scene with the candidates a run was made from: when ``RUN/instance_masks/`` exists
+    (generated candidates, written by ``clutt3r segment``), they replace the scene's own on the
+    initial views, so a viewer shows what the run's trace refers to. Unchanged otherwise."""
+    from clutt3r_core.masks.formats import read_png_masks
+
+    folder = Path(run_dir) / "instance_masks"
+    if not folder.is_dir():
+        return scene
+    views = list(scene.views)
+    for i in scene.initial:
+        v = views[i]
+        views[i] = dataclasses.replace(v, masks=read_png_masks(folder, v.frame, (v.camera.height, v.camera.width)))
+    return dataclasses.replace(scene, views=tuple(views))

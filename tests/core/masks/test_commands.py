@@ -66,3 +66,22 @@ def test_segment_auto_keeps_scene_masks(tmp_path):
     main(["segment", str(root), "--out", str(run)])
     assert json.loads((run / "run.json").read_text())["masks"] == {"generator": "scene", "folder": None}
     assert not (run / "instance_masks").exists()
+
+
+def test_run_masks_replace_the_scene_candidates_for_the_viewer(bare_scene, tmp_path):
+    """What the viewer's loader does (clutt3r_viewer.loading.load_viewer_data calls with_run_masks)."""
+    from clutt3r_core.masks import with_run_masks
+
+    run = tmp_path / "run"
+    main(["segment", str(bare_scene), "--out", str(run), "--masks", "builtin"])
+    sc = with_run_masks(load_scene(bare_scene), run)
+    from clutt3r_core.runs import load_run
+
+    t = load_run(run).trace
+    for v in sc.initial_views:
+        assert v.masks is not None
+        leaf_ids = set(t.nodes.mask_id[t.nodes.frame == v.frame].tolist())
+        assert leaf_ids <= set(v.masks.ids.tolist())  # every node of the trace has its mask
+    viewer = pytest.importorskip("clutt3r_viewer.loading")
+    data = viewer.load_viewer_data(run)
+    assert data is not None
