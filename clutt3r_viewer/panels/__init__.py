@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from clutt3r_viewer.panels.base import Change, Panel
 from clutt3r_viewer.panels.edit import EditPanel
+from clutt3r_viewer.panels.explain import ExplainPanel
 from clutt3r_viewer.panels.graph import LeafGraphPanel
 from clutt3r_viewer.panels.grasps import GraspsPanel
 from clutt3r_viewer.panels.query import QueryPanel
@@ -22,4 +23,4 @@ __all__ = ["Panel", "Change", "PANELS", "ViewsPanel", "ScenePanel", "InstancesPa
            "ReplayPanel", "QueryPanel", "EditPanel", "GraspsPanel", "UpdatesPanel"]
 
 PANELS: list[type[Panel]] = [ViewsPanel, ScenePanel, InstancesPanel, TreePanel, LeafGraphPanel, ReplayPanel,
-                             QueryPanel, EditPanel, GraspsPanel, UpdatesPanel]
+                             ExplainPanel, QueryPanel, EditPanel, GraspsPanel, UpdatesPanel]
