@@ -30,7 +30,9 @@ Rules, in order (each instance takes at most one mask and each mask at most one 
    mask is missing or merged into a neighbour's, which Grounded-SAM-like detectors do) when
    the new view still shows it where it was: with depth, ``presence_fraction`` of its visible
    pixels within ``presence_depth_tol`` of the stored depth; without depth, of its visible
-   pixels within ``presence_color_tol`` of the stored colour. Otherwise it is ``removed``
+   pixels within ``presence_color_tol`` of the stored colour AND inside some mask candidate
+   smaller than ``max_object_fraction`` of the image (a dark object on a dark table passes
+   the colour test alone). Otherwise it is ``removed``
    (its place is visible and it is not there).
 6. Unmatched masks (leaves, and parents that replaced residual leaves) are ``new`` unless
    they lie at least ``part_fraction`` inside a matched mask (a part of a matched instance).
@@ -47,7 +49,7 @@ from clutt3r_core.segmentation.trees import InstanceTree, build_instance_tree, s
 from clutt3r_core.update.project import splat
 from clutt3r_core.update.types import AssociationConfig
 
-__all__ = ["Projection", "Association", "project_instances", "associate"]
+__all__ = ["Projection", "Association", "project_instances", "associate", "unmatched_status"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -125,6 +127,35 @@ class Association:
     new_masks: tuple[int, ...]
     s_spatial: np.ndarray
     s_semantic: np.ndarray
+
+
+def unmatched_status(view: View, proj: Projection, i: int, cfg: AssociationConfig) -> tuple[str, str]:
+    """Rule 5 for instance ``proj.ids[i]``: (status, how) = ("occluded" | "static" | "removed",
+    "" or "present-depth" / "present-colour")."""
+    masks = view.masks
+    own, vis = proj.own_area[i], proj.visible_area[i]
+    if own < cfg.min_area_px or vis < cfg.hidden_fraction * own:
+        return "occluded", ""
+    sel = proj.label == proj.ids[i]
+    depth = view.depth
+    if depth is not None:
+        d, z = depth[sel], proj.depth[sel]
+        ok = np.isfinite(d)
+        if ok.sum() >= cfg.min_area_px:
+            if np.mean(d[ok] < z[ok] - cfg.nearer_margin) > 0.5:
+                return "occluded", ""
+            if np.mean(np.abs(d[ok] - z[ok]) <= cfg.presence_depth_tol) >= cfg.presence_fraction:
+                return "static", "present-depth"
+    elif proj.color is not None and masks is not None and len(masks):
+        # colour alone cannot tell a dark object from a dark table: a present object is
+        # also inside some object-sized mask candidate (its own mask merged into another)
+        areas = np.count_nonzero(masks.masks, axis=(1, 2))
+        small = areas <= cfg.max_object_fraction * masks.shape[0] * masks.shape[1]
+        covered = float(np.mean(masks.masks[small].any(axis=0)[sel])) if small.any() else 0.0
+        diff = np.abs(view.rgb[sel].astype(np.int32) - proj.color[sel].astype(np.int32)).mean(axis=1)
+        if np.mean(diff <= cfg.presence_color_tol) >= cfg.presence_fraction and covered >= cfg.presence_fraction:
+            return "static", "present-colour"
+    return "removed", ""
 
 
 def _greedy(score: np.ndarray, tau: float, rows: list[int], cols: list[int]) -> list[tuple[int, int]]:
@@ -222,31 +253,9 @@ def associate(
             consumed |= others
     # rule 5: unmatched instances: hidden -> occluded; still there -> static; else removed
     status = [""] * K
-    depth = view.depth
     for k in range(K):
-        if matched_node[k] >= 0:
-            continue
-        own, vis = proj.own_area[k], proj.visible_area[k]
-        if own < cfg.min_area_px or vis < cfg.hidden_fraction * own:
-            status[k] = "occluded"
-            continue
-        sel = proj.label == ids[k]
-        if depth is not None:
-            d, z = depth[sel], proj.depth[sel]
-            ok = np.isfinite(d)
-            if ok.sum() >= cfg.min_area_px:
-                if np.mean(d[ok] < z[ok] - cfg.nearer_margin) > 0.5:
-                    status[k] = "occluded"
-                    continue
-                if np.mean(np.abs(d[ok] - z[ok]) <= cfg.presence_depth_tol) >= cfg.presence_fraction:
-                    status[k], how[k] = "static", "present-depth"
-                    continue
-        elif proj.color is not None:
-            diff = np.abs(view.rgb[sel].astype(np.int32) - proj.color[sel].astype(np.int32)).mean(axis=1)
-            if np.mean(diff <= cfg.presence_color_tol) >= cfg.presence_fraction:
-                status[k], how[k] = "static", "present-colour"
-                continue
-        status[k] = "removed"
+        if matched_node[k] < 0:
+            status[k], how[k] = unmatched_status(view, proj, k, cfg)
     # rule 6: new masks
     taken = set(int(x) for x in matched_node if x >= 0)
     matched_union = np.zeros(masks.shape, bool)

@@ -8,9 +8,12 @@ Parameterisation (``PoseConfig.dof``):
   decoupled (a turn in place does not move the centroid), and t_z is directly the vertical
   motion that L_reg,z penalises.
 - ``yaw``: w = (0, 0, theta): a turn about the world z axis through c, plus t (4 DoF).
-- ``yaw-then-se3`` (default): the coarse stage in yaw + t, the fine stage in full SE(3).
-  Roll and pitch are poorly observed from a silhouette and drift during the coarse search
-  (measured in docs/update.md); objects pushed on a table turn mostly about the vertical.
+- ``yaw-then-se3``: the coarse stage in yaw + t, the fine stage in full SE(3).
+
+The default is ``yaw``: roll and pitch are poorly observed from one silhouette and drift
+during the search (measured in docs/update.md); objects pushed on a table turn mostly about
+the vertical. All three share one parameter vector (w, t); a stage's mask zeroes the unused
+rotation components.
 
 Objective (eq. 6): ``L = l_chamfer L_chamfer + l_photo L_photo + l_reg,z L_reg,z (+ l_depth L_depth)``
 
@@ -232,7 +235,8 @@ class _Solver:
                                 {"params": [t], "lr": self.cfg.lr_translation}])
         return params, opt
 
-    def steps(self, params, opt, stage: StageConfig, stage_id: int, n: int, log: list, decay: bool = True) -> None:
+    def steps(self, params, opt, stage: StageConfig, stage_id: int, n: int, log: list, decay: bool = True,
+              lazy_iou: bool = False) -> None:
         scale = 1.0 if stage_id == 0 else self.cfg.fine_lr_scale
         base = [self.cfg.lr_rotation * scale, self.cfg.lr_translation * scale]
         for i in range(n):
@@ -243,7 +247,9 @@ class _Solver:
             opt.zero_grad()
             total, terms = self.losses(params, stage)
             T = self.matrix(params)
-            log.append((stage_id, T, [float(total.detach())] + [float(x.detach()) for x in terms], self.iou(T)))
+            # probes of the yaw starts defer the IoU: only the kept start's steps are recorded
+            log.append((stage_id, T, [float(total.detach())] + [float(x.detach()) for x in terms],
+                        None if lazy_iou else self.iou(T)))
             total.backward()
             opt.step()
 
@@ -261,12 +267,14 @@ class _Solver:
         for yaw in cfg.yaw_starts_deg:
             params, opt = self.new_params(np.deg2rad(yaw), t0)
             log: list = []
-            self.steps(params, opt, cfg.coarse, 0, min(cfg.probe_iterations, cfg.coarse.iterations), log, decay=False)
+            self.steps(params, opt, cfg.coarse, 0, min(cfg.probe_iterations, cfg.coarse.iterations), log, decay=False,
+                       lazy_iou=len(cfg.yaw_starts_deg) > 1)
             with self.torch.no_grad():
                 score = float(self.losses(params, cfg.coarse)[0])
             if best is None or score < best[0]:
                 best = (score, params, opt, log)
         _, params, opt, log = best
+        log = [(a, T, ls, self.iou(T) if iou is None else iou) for a, T, ls, iou in log]
         self.steps(params, opt, cfg.coarse, 0, max(0, cfg.coarse.iterations - cfg.probe_iterations), log)
         self.final(params, cfg.coarse, 0, log)
         stages = 1

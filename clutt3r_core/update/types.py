@@ -56,25 +56,27 @@ class StageConfig:
     """Weight of L_reg,z (Sec. IV: 10.0 coarse, 1.0 fine)."""
     iterations: int
     """Adam steps of the stage (ours: the paper gives no count; 60 + 40 measured enough on the
-    generated pairs, docs/update.md, and keeps an update under 3 s)."""
+    generated pairs, docs/update.md; 40 + 30 keeps one displaced object near 1 s of CPU)."""
 
 
 @dataclass(frozen=True)
 class PoseConfig:
     """Rigid pose update of a displaced instance (Sec. III-C "Change Detection and Instance-wise Update")."""
 
-    coarse: StageConfig = StageConfig(50.0, 0.5, 10.0, 60)
+    coarse: StageConfig = StageConfig(50.0, 0.5, 10.0, 40)
     """Sec. IV stage 1 weights (chamfer, photo, reg_z) = (50, 0.5, 10); iterations ours."""
-    fine: StageConfig = StageConfig(10.0, 2.0, 1.0, 40)
+    fine: StageConfig = StageConfig(10.0, 2.0, 1.0, 30)
     """Sec. IV stage 2 weights (10, 2.0, 1.0); iterations ours."""
     tau_iou: float = 0.75
     """Sec. IV tau_IoU: the coarse stage ends the optimisation when its IoU reaches this."""
     early_exit: bool = True
     """Sec. III-C: skip the fine stage when the coarse IoU >= tau_iou. False always refines (ours)."""
-    dof: Literal["se3", "yaw", "yaw-then-se3"] = "yaw-then-se3"
-    """se3: axis-angle rotation about the instance centroid + translation (6 DoF);
-    yaw: rotation about the world z axis through the centroid + translation (4 DoF);
-    yaw-then-se3 (ours, default): yaw + t in the coarse stage, SE(3) in the fine stage."""
+    dof: Literal["se3", "yaw", "yaw-then-se3"] = "yaw"
+    """se3: axis-angle rotation about the instance centroid + translation (6 DoF, the paper's
+    SE(3)); yaw: rotation about the world z axis through the centroid + translation (4 DoF);
+    yaw-then-se3: yaw + t in the coarse stage, SE(3) in the fine stage. Default yaw (ours,
+    measured in docs/update.md: roll and pitch are poorly observed from one silhouette and
+    drift; objects pushed on a table turn about the vertical)."""
     lambda_depth: float = 1.0
     """Ours: weight of the depth term (Huber of point z vs the new depth, in cm) used only when
     the new view has depth ("use the new depth when it exists", issue 10)."""
@@ -89,11 +91,11 @@ class PoseConfig:
     fine_lr_scale: float = 0.25
     """Ours: the fine stage refines, with the step sizes scaled by this (full steps there let
     roll and pitch wander: measured in docs/update.md)."""
-    yaw_starts_deg: tuple[float, ...] = (0.0, 40.0, -40.0, 80.0, -80.0, 180.0)
+    yaw_starts_deg: tuple[float, ...] = (0.0, 60.0, -60.0, 180.0)
     """Ours: initial yaw hypotheses; each runs ``probe_iterations`` coarse steps and the best
     (lowest coarse loss) continues. The push of a neighbour turns it 20-60 deg, more than a
     chamfer descent from 0 recovers reliably."""
-    probe_iterations: int = 15
+    probe_iterations: int = 10
     """Ours: coarse steps per yaw hypothesis before the best one is kept."""
     max_points: int = 600
     """Ours: the optimisation uses at most this many of the instance's points (uniform
@@ -139,6 +141,9 @@ class AssociationConfig:
     presence_color_tol: float = 30.0
     """Ours, 0-255 mean absolute RGB difference: a pixel's colour agrees with the stored colour
     (no-depth views only)."""
+    max_object_fraction: float = 0.2
+    """Ours: mask candidates larger than this fraction of the image (the table, a whole pile)
+    are not object evidence for the no-depth presence test."""
     part_fraction: float = 0.5
     """Ours: an unmatched mask lying at least this fraction inside a matched mask is a part of
     that instance (over-segmentation), not a new object."""
@@ -157,6 +162,10 @@ class ChangeConfig:
     object falls below tau_IoU from segmentation and reconstruction errors alone (thin
     objects, parts missing from the stored cloud); the optimiser then finds no better pose.
     False = the paper's rule (IoU < tau_IoU is displaced)."""
+    min_fit_iou: float = 0.5
+    """Ours: an instance matched by appearance only (semantic stage) whose best rigid fit to
+    the mask stays below this IoU was matched to another object's mask; it is judged as
+    unmatched instead (removed / occluded / present, associate.py rule 5)."""
     min_iou_gain: float = 0.05
     """Ours, see ``verify``."""
     min_translation: float = 0.01

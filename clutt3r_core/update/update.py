@@ -21,7 +21,7 @@ import numpy as np
 from clutt3r_core.errors import SceneError
 from clutt3r_core.scene import MaskCandidates, View
 from clutt3r_core.segmentation.trees import build_instance_tree
-from clutt3r_core.update.associate import Association, Projection, associate, project_instances
+from clutt3r_core.update.associate import Association, Projection, associate, project_instances, unmatched_status
 from clutt3r_core.update.project import mask_iou
 from clutt3r_core.update.state import SceneState
 from clutt3r_core.update.types import InstanceUpdate, NewMask, PoseProblem, UpdateConfig, UpdateResult
@@ -129,7 +129,11 @@ def update_scene(
                 mask=new_mask[k], occluder_depth=occ_proj.depth, depth=view.depth, voxel_size=voxel,
             )
             res = optimizer.optimize(pb)
-            if config.change.verify and not _moved(res, state.points[sel].mean(axis=0), iou[k], config):
+            if config.change.verify and "semantic" in assoc.match[i] and res.iou_after < config.change.min_fit_iou:
+                # an appearance match that no rigid motion fits is not this object: unmatched
+                st_k, how_k = unmatched_status(view, proj_all, i, config.association)
+                records.append(InstanceUpdate(k, st_k, None, None, None, -1, how_k or "semantic-rejected", pose=res))
+            elif config.change.verify and not _moved(res, state.points[sel].mean(axis=0), iou[k], config):
                 records.append(InstanceUpdate(k, "static", iou[k], iou[k], None, mid, assoc.match[i], pose=res))
             else:
                 records.append(InstanceUpdate(k, "displaced", iou[k], res.iou_after, res.T_world, mid,
