@@ -1,7 +1,23 @@
-"""The Query tab: rank instances by a text query (shown only when the run's embedder embeds text)."""
+"""The Query tab: rank instances by a text query, colour them by score, and say why the best won.
+
+Two sources of scores:
+
+* the language backend (``clutt3r_core.query``, default text embedder of the registry, e.g.
+  ``imagenet-minilm``): the run's masks are described once (a few seconds per view, shown in
+  the tab), then each phrase is scored by class names and colour words; the tab lists the
+  ranking with each instance's reason (class name and its probability, colour shares) and
+  whether the answer is confident;
+* a text embedder that shares the space of the run's own mask embeddings
+  (``app.text_embedder``, e.g. a CLIP run): cosine scores, as before.
+
+Both set ``state.query_scores`` (the ``query`` colour layer: a heat map over instances) and
+``state.query_best`` (highlighted; the Grasps tab can take it as its target).
+"""
 
 from __future__ import annotations
 
+import threading
+from types import SimpleNamespace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -13,7 +29,24 @@ if TYPE_CHECKING:
 
     from clutt3r_viewer.app import Session, ViewerApp
 
-__all__ = ["QueryPanel"]
+__all__ = ["QueryPanel", "language_backend_name"]
+
+_RQ_LOCK = threading.Lock()
+
+
+def language_backend_name() -> str | None:
+    """The registry's default text embedder when it can be built without arguments (a
+    backend that needs weight paths, like clip-onnx, cannot), else None."""
+    try:
+        from clutt3r_core.registry import REGISTRY, default_backend
+
+        name = default_backend("text_embedder")
+        if name is None or name in ("open-clip", "clip-onnx"):
+            return None
+        REGISTRY.get("text_embedder", name)
+        return name
+    except Exception:  # a broken registry must not break the viewer
+        return None
 
 
 class QueryPanel(Panel):
@@ -24,7 +57,7 @@ class QueryPanel(Panel):
 
     @classmethod
     def available(cls, app: "ViewerApp") -> bool:
-        return app.text_embedder is not None
+        return app.text_embedder is not None or language_backend_name() is not None
 
     def build(self, s: "Session") -> None:
         gui = s.client.gui
@@ -32,32 +65,74 @@ class QueryPanel(Panel):
         self.find = gui.add_button("Find")
         self.find.on_click(lambda ev: self.run_query(s, self.query.value))
         self.query.on_update(lambda ev: self.run_query(s, self.query.value))
-        self.result = gui.add_markdown(f"_text embedder: `{s.app.text_embedder.name}`_")
+        name = s.app.text_embedder.name if s.app.text_embedder is not None else language_backend_name()
+        self.result = gui.add_markdown(f"_text embedder: `{name}`_")
+
+    # -- the language backend -----------------------------------------------------------------
+
+    def _run_query_object(self, s: "Session"):
+        """The app's ``RunQuery`` (built once per app: the masks are embedded on first use)."""
+        with _RQ_LOCK:
+            rq = getattr(s.app, "_run_query", None)
+            if rq is not None and rq.seg is s.app.data.seg:
+                return rq
+            from clutt3r_core.query import RunQuery, create_grounder
+
+            data = s.app.data
+            if not data.views or any(v.masks is None for v in data.views):
+                raise RuntimeError("the run was opened without its scene images (--scene): masks cannot be described")
+            self.result.content = f"_describing {len(data.views)} views' masks with `{language_backend_name()}` ..._"
+            scene = SimpleNamespace(initial_views=data.views, name=data.seg.scene_name)
+            rq = RunQuery.from_scene(data.seg, scene, create_grounder(language_backend_name()))
+            s.app._run_query = rq
+            return rq
+
+    def _language_scores(self, s: "Session", text: str):
+        rq = self._run_query_object(s)
+        res = rq.query(text)
+        lines = [f"**{text}** → I{res.target} "
+                 + ("(confident)" if res.confident else "(_not confident: nothing matches clearly_)"),
+                 "", "| inst | score | why |", "|---|---|---|"]
+        for k in res.ranking[:8]:
+            why = res.explanations[k].summary().replace("|", "/")
+            lines.append(f"| I{k} | {res.scores[k]:+.2f} | {why} |")
+        lines.append(f"\n_{res.backend}, {res.time_s * 1e3:.0f} ms_")
+        return res.scores.astype(np.float32), res.target, "\n".join(lines)
+
+    # -- shared-space text embedder (the run's own) --------------------------------------------
+
+    def _cosine_scores(self, s: "Session", text: str):
+        emb = s.app.text_embedder.embed_text([text])[0]
+        scores = s.app.data.instance_text_scores(emb)
+        if len(scores) == 0:
+            return scores, None, "_no instances_"
+        order = np.argsort(-scores)
+        content = "\n".join([f"**{text}** → I{int(order[0])}", "", "| inst | score |", "|---|---|"]
+                            + [f"| I{int(k)} | {scores[k]:.3f} |" for k in order[:8]])
+        return scores, int(order[0]), content
 
     def run_query(self, s: "Session", text: str) -> None:
         """Score every instance against ``text``; the best one is highlighted (``query`` colour layer)."""
+        text = text.strip()
+        scores = best = None
+        content = "_empty query_"
+        if text:
+            try:
+                if s.app.text_embedder is not None:
+                    scores, best, content = self._cosine_scores(s, text)
+                else:
+                    scores, best, content = self._language_scores(s, text)
+            except Exception as e:  # shown in the tab; the viewer keeps running
+                scores, best, content = None, None, f"_query failed: {type(e).__name__}: {e}_"
         with s.lock:
-            text = text.strip()
             st = s.state
             st.query = text
-            if not text:
+            if scores is None or best is None or len(scores) == 0:
                 st.query_best, st.query_scores = -1, None
-                self.result.content = "_empty query_"
                 if st.color_mode == "query":
                     st.color_mode = "instance"
-                s.changed(Change.COLOUR)
-                return
-            emb = s.app.text_embedder.embed_text([text])[0]
-            scores = s.app.data.instance_text_scores(emb)
-            if len(scores) == 0:
-                st.query_best, st.query_scores = -1, None
-                self.result.content = "_no instances_"
-                s.changed(Change.COLOUR)
-                return
-            order = np.argsort(-scores)
-            st.query_best, st.query_scores = int(order[0]), scores
-            st.color_mode = "query"
-            self.result.content = "\n".join(
-                [f"**{text}** → I{int(order[0])}", "", "| inst | score |", "|---|---|"]
-                + [f"| I{int(k)} | {scores[k]:.3f} |" for k in order[:8]])
+            else:
+                st.query_best, st.query_scores = int(best), np.asarray(scores, np.float32)
+                st.color_mode = "query"
+            self.result.content = content
             s.changed(Change.COLOUR)
