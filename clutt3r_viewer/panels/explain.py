@@ -109,7 +109,7 @@ class ExplainPanel(Panel):
         self.why_here = gui.add_button("Why here?")
         self.why_here.on_click(lambda ev: self.explain_supervoxel(s, int(self.supervoxel.value)))
         self.sv_answer = gui.add_markdown("")
-        s.client.scene.on_click(lambda ev: self.on_scene_click(s, ev.ray_origin, ev.ray_direction))
+        s.client.scene.on_click()(lambda ev: self.on_scene_click(s, ev.ray_origin, ev.ray_direction))
 
     # -- actions (server side; the tests call them too) ---------------------------------
 
