@@ -13,7 +13,7 @@ from hypothesis import HealthCheck, given, settings
 
 from tests.core.robustness._fuzz import apply, check_loads, corruptions
 
-_SETTINGS = settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+_SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
 def _check(c) -> None:
