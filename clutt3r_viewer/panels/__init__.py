@@ -17,6 +17,7 @@ from clutt3r_viewer.panels.replay import ReplayPanel
 from clutt3r_viewer.panels.scene import InstancesPanel, ScenePanel
 from clutt3r_viewer.panels.tree import TreePanel
 from clutt3r_viewer.panels.updates import UpdatesPanel
+import clutt3r_viewer.panels.update_sources  # noqa: E402,F401  (registers the update chain's frames and pose replay)
 from clutt3r_viewer.panels.views import ViewsPanel
 
 __all__ = ["Panel", "Change", "PANELS", "ViewsPanel", "ScenePanel", "InstancesPanel", "TreePanel", "LeafGraphPanel",

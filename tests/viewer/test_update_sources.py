@@ -1,0 +1,60 @@
+"""The viewer reads a run's update chain (issue 10): Updates-tab frames and the pose replay."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+
+from clutt3r_core.update import InstanceUpdate, PoseResult, PoseTrace, UpdateResult
+from clutt3r_core.update.state import apply_update, save_state, state_from_segmentation
+
+
+def _fake_update(state, frame: int, k: int, shift: float, removed: int | None, n_iter: int) -> UpdateResult:
+    """An update that moved instance k by ``shift`` m along x in n_iter recorded iterations."""
+    Ts = np.tile(np.eye(4), (n_iter, 1, 1))
+    Ts[:, 0, 3] = np.linspace(0.0, shift, n_iter)
+    trace = PoseTrace(np.zeros(n_iter, np.int8), Ts, np.tile(np.linspace(1, 0.1, n_iter)[:, None], (1, 5)),
+                      np.linspace(0.1, 0.9, n_iter))
+    recs = []
+    for i in state.instance_ids:
+        i = int(i)
+        if i == k:
+            recs.append(InstanceUpdate(i, "displaced", 0.1, 0.9, Ts[-1], pose=PoseResult(Ts[-1], 0.1, 0.9, trace, 1, 0.0)))
+        elif i == removed:
+            recs.append(InstanceUpdate(i, "removed", None, None, None))
+        else:
+            recs.append(InstanceUpdate(i, "static", 0.9, 0.9, None))
+    return UpdateResult(frame, tuple(recs), (), np.zeros((len(recs), 4, 4), bool), np.full((4, 4), -1, np.int32), 0.1)
+
+
+def test_update_chain_is_replayed(tiny_run_dir, tiny_seg, tmp_path):
+    import clutt3r_viewer.panels.update_sources  # noqa: F401  (registers the loader and the source)
+    from clutt3r_viewer.events import event_sources
+    from clutt3r_viewer.loading import load_viewer_data
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run_dir, run)
+    assert tiny_seg.num_instances >= 3
+    s0 = state_from_segmentation(tiny_seg, run=run)
+    r1 = _fake_update(s0, 8, k=0, shift=0.05, removed=2, n_iter=6)
+    s1 = apply_update(s0, r1)
+    save_state(s1, run / "updates" / "01_frame_000008", r1)
+    r2 = _fake_update(s1, 9, k=0, shift=0.02, removed=None, n_iter=4)
+    s2 = apply_update(s1, r2)
+    save_state(s2, run / "updates" / "02_frame_000009", r2)
+
+    d = load_viewer_data(run, images=False)
+    assert [u.frame for u in d.updates] == [8, 9]
+    assert "| 2 | removed |" in d.updates[0].text
+    assert np.all(d.updates[1].point_instance[tiny_seg.instance == 2] == -1)  # removed stays removed
+    src = [s for s in event_sources(d) if s.name == "scene updates: pose iterations"][0]
+    assert src.num_events == 6 + 4
+    idx = np.flatnonzero(tiny_seg.instance == 0)
+    p0 = src.points(0, idx)
+    np.testing.assert_allclose(p0, tiny_seg.points[idx], atol=1e-6)
+    mid = src.points(6, idx)  # end of update 1: moved 5 cm
+    np.testing.assert_allclose(mid[:, 0] - tiny_seg.points[idx, 0], 0.05, atol=1e-5)
+    last = src.points(src.num_events, idx)  # both updates composed: the final state's points
+    np.testing.assert_allclose(last, s2.points[s2.instance == 0], atol=1e-5)
+    assert "iteration" in src.text(3)
