@@ -1,13 +1,15 @@
 """The Explain tab: "Why not?" for two masks and "Why here?" for a super-voxel.
 
 "Why not?": pick two masks (type FRAME:MASK, take the Tree tab's selected node, or click
-their points in 3D with "Click in 3D picks" on masks) and read ``clutt3r_core.explain.
+their points in 3D: Alt+click, with "Alt+click in 3D picks" on masks) and read ``clutt3r_core.explain.
 explain_pair`` in words and numbers; "Replay: go to step N" moves the Replay tab to the step
-where their fates diverged (and the Replay tab then follows the pair). "Why here?": click a
+where their fates diverged (and the Replay tab then follows the pair). "Why here?": Alt+click a
 point (pick mode super-voxel) or type a super-voxel index and read its tally
 (``explain_supervoxel``).
 
-A 3D click arrives as a world ray (viser ``scene.on_click``); the point is the front-most
+Alt+click, because a plain click belongs to the Edit tab's selection (both would fire: viser
+calls every scene click callback whose modifier matches). A 3D click arrives as a world ray
+(viser ``scene.on_click``); the point is the front-most
 displayed point near the ray (``selection.pick_along_ray``), its super-voxel the run's; the
 mask of a clicked point is the mask that occupies that super-voxel most, in the selected
 view first (``mask_at_supervoxel``). Every action is a method, so tests drive them without
@@ -95,7 +97,7 @@ class ExplainPanel(Panel):
         self.take_b = gui.add_button("B = Tree selection")
         self.take_a.on_click(lambda ev: self.take_selected(s, "a"))
         self.take_b.on_click(lambda ev: self.take_selected(s, "b"))
-        self.pick = gui.add_dropdown("Click in 3D picks", PICK_MODES, initial_value=PICK_MODES[0])
+        self.pick = gui.add_dropdown("Alt+click in 3D picks", PICK_MODES, initial_value=PICK_MODES[0])
         self.why_not = gui.add_button("Why not?")
         self.why_not.on_click(lambda ev: self.explain_masks(s, self.mask_a.value, self.mask_b.value))
         self.answer = gui.add_markdown("")
@@ -109,7 +111,7 @@ class ExplainPanel(Panel):
         self.why_here = gui.add_button("Why here?")
         self.why_here.on_click(lambda ev: self.explain_supervoxel(s, int(self.supervoxel.value)))
         self.sv_answer = gui.add_markdown("")
-        s.client.scene.on_click()(lambda ev: self.on_scene_click(s, ev.ray_origin, ev.ray_direction))
+        s.client.scene.on_click(modifier="alt")(lambda ev: self.on_scene_click(s, ev.ray_origin, ev.ray_direction))
 
     # -- actions (server side; the tests call them too) ---------------------------------
 

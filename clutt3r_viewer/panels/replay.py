@@ -23,7 +23,7 @@ if TYPE_CHECKING:
 
     from clutt3r_viewer.app import Session, ViewerApp
 
-__all__ = ["ReplayPanel", "step_groups", "pair_image", "COLOUR_A", "COLOUR_B"]
+__all__ = ["ReplayPanel", "step_groups", "pair_image", "group_points", "COLOUR_A", "COLOUR_B"]
 
 COLOUR_A = np.array([255, 120, 0], np.uint8)   # orange: the first group / mask
 COLOUR_B = np.array([0, 140, 255], np.uint8)   # blue: the second
@@ -44,6 +44,16 @@ def step_groups(data: ViewerData, n: int) -> tuple[tuple[int, ...], tuple[int, .
     sub = g.substitutions[idx]
     return (sub.parent,), sub.replaced, (f"substitution: parent **A** (orange) replaces {len(sub.replaced)} "
                                          f"residual leaves **B** (blue), round {sub.round}")
+
+
+def group_points(data: ViewerData, members: tuple[int, ...]) -> np.ndarray:
+    """(N,) bool: points of the object super-voxels that a member mask covers at least
+    ``min_coverage`` of (the vote's guard): a few pixels bleeding onto the table do not
+    light up the table."""
+    tr = data.trace
+    occ = tr.occupancy[list(members)].max(axis=0) if len(members) else np.zeros(tr.occupancy.shape[1])
+    sv_on = (occ >= max(tr.config.vote.min_coverage, 1e-6)) & ~data.seg.sv_support
+    return sv_on[data.seg.sv_labels]
 
 
 def pair_image(data: ViewerData, a: tuple[int, ...], b: tuple[int, ...],
@@ -194,9 +204,7 @@ class ReplayPanel(Panel):
                 if handle is not None:
                     handle.visible = False
                 continue
-            on = np.zeros(len(d.seg.points), bool)
-            for i in members:
-                on |= d.node_points(int(i))
+            on = group_points(d, members)
             idx = s.lod_idx[on[s.lod_idx]]
             pts = (d.seg.points[idx] - d.centre).astype(np.float32)
             if handle is not None:
