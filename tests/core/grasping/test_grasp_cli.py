@@ -61,3 +61,18 @@ def test_no_grasp_is_an_empty_list_not_a_crash(run_dir, capsys):
 def test_bad_arguments_are_one_clear_line(run_dir, args, msg):
     with pytest.raises(SystemExit, match=msg):
         main(["grasp", str(run_dir), *args])
+
+
+def test_run_without_its_scene_falls_back_to_cloud_only_and_says_so(tmp_path, capsys):
+    from clutt3r_core.grasping.request import run_views
+    from clutt3r_core.runs import save_run
+    from tests.core._tiny_run import tiny_segmentation
+
+    run = save_run(tiny_segmentation(), tmp_path / "run")  # no scene recorded
+    views, warn = run_views(run)
+    assert views == () and "cloud only" in warn
+    main(["grasp", str(run), "--instance", "0", "--json"])
+    captured = capsys.readouterr()
+    assert "cloud only" in captured.err
+    obj = json.loads(captured.out.strip().splitlines()[-1])
+    assert obj["target"] == 0 and isinstance(obj["grasps"], list)
