@@ -97,7 +97,7 @@ def queries_for(scene, covered: set[int], rng) -> list[tuple[str, str, str]]:
     return out
 
 
-def evaluate(cases, config) -> dict:
+def evaluate(cases, config, semantic: bool = True) -> dict:
     """cases: list of (rq, seg, scene, best_gt, queries). Returns metrics per kind."""
     from clutt3r_core.evaluation.metrics import semantic_iou
 
@@ -120,7 +120,7 @@ def evaluate(cases, config) -> dict:
             if kind != "absent" and res.target is not None:
                 masks.append(seg.instance == res.target)
                 cats.append(cat)
-        if masks:
+        if masks and semantic:
             s = semantic_iou(seg.points, masks, cats, scene.ground_truth)
             per.setdefault("_semantic_iou", {"iou": []})["iou"].extend(x.iou for x in s.per_query)
     out = {}
@@ -147,6 +147,7 @@ def main() -> None:
     ap.add_argument("--seeds", nargs="+", type=int, default=[10, 11])
     ap.add_argument("--backend", default="imagenet-minilm")
     ap.add_argument("--sweep", action="store_true", help="grid over temperature and colour weight")
+    ap.add_argument("--margins", action="store_true", help="sweep only QueryConfig.confident_margin")
     ap.add_argument("--cli", action="store_true", help="time whole `clutt3r query` processes")
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
@@ -179,6 +180,7 @@ def main() -> None:
                   file=sys.stderr)
     report = {"backend": args.backend, "scenes": [f"{p}-{s}" for p in args.presets for s in args.seeds],
               "model_load_s": load_s, "default": evaluate(cases, QueryConfig())}
+    print(json.dumps(report["default"]), file=sys.stderr)
     if embed_s:
         report["embed_run_s"] = {"mean": float(np.mean(embed_s)), "masks_mean": float(np.mean(n_masks)),
                                  "ms_per_mask": 1e3 * float(np.sum(embed_s) / max(np.sum(n_masks), 1))}
@@ -195,18 +197,28 @@ def main() -> None:
             return np.stack([memo[x] for x in texts])
     
         grounder.embed_text = embed_memo
+        # ranking settings first (the margin only changes `confident`), then the margin at the default
         for center in (True, False):
             for temp in (0.02, 0.05, 0.1):
-                for cw in (0.0, 1.0, 2.0, 3.0):
-                    for gate in (0.0, 0.4, 0.55):
-                        for margin in (0.25, 0.5, 0.75, 1.0):
-                            cfg = QueryConfig(temperature=temp, color_weight=cw, confident_margin=margin,
-                                              center=center, name_gate=gate)
-                            r = evaluate(cases, cfg)
-                            grid.append({"center": center, "temperature": temp, "color_weight": cw, "gate": gate,
-                                         "margin": margin,
-                                         **{k: r[k] for k in ("name", "colour + name", "absent") if k in r}})
+                for cw in (1.0, 2.0, 3.0):
+                    for gate in (0.0, 0.45):
+                        cfg = QueryConfig(temperature=temp, color_weight=cw, center=center, name_gate=gate)
+                        r = evaluate(cases, cfg, semantic=False)
+                        grid.append({"center": center, "temperature": temp, "color_weight": cw, "gate": gate,
+                                     **{k: r[k] for k in ("name", "colour + name", "absent") if k in r}})
+                        print(json.dumps(grid[-1]), file=sys.stderr)
+        for margin in (0.25, 0.5, 0.75, 1.0, 1.5):
+            r = evaluate(cases, QueryConfig(confident_margin=margin), semantic=False)
+            grid.append({"margin": margin, **{k: r[k] for k in ("name", "colour + name", "absent") if k in r}})
+            print(json.dumps(grid[-1]), file=sys.stderr)
         report["sweep"] = grid
+    if args.margins:
+        rows = []
+        for margin in (0.25, 0.5, 0.75, 1.0, 1.25, 1.5):
+            r = evaluate(cases, QueryConfig(confident_margin=margin), semantic=False)
+            rows.append({"margin": margin, **{k: r[k] for k in ("name", "colour + name", "absent") if k in r}})
+            print(json.dumps(rows[-1]), file=sys.stderr)
+        report["margins"] = rows
     if args.cli:
         run_dir = args.work / f"{args.presets[0]}-{args.seeds[0]}" / "run"
         walls = []

@@ -54,7 +54,7 @@ def test_colour_words_decide_between_equal_names():
     assert res.target == 1
     assert res.explanations[1].colors[0].word == "yellow"
     assert res.explanations[1].colors[0].share == pytest.approx(0.9)
-    assert res.explanations[1].color_score == pytest.approx(2.0 * 0.9)
+    assert res.explanations[1].color_score == pytest.approx(QueryConfig().color_weight * 0.9)
 
 
 def test_nothing_matches_is_not_confident():
