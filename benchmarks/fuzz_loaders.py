@@ -2,7 +2,8 @@
 (``load_scene`` on a corrupted scene returns a Scene or raises a ``Clutt3rError``, nothing
 else), run in rounds of fresh random examples until the time is up.
 
-Usage: .venv/bin/python benchmarks/fuzz_loaders.py [--minutes 3] [--kinds json png npz] [--round 200]
+Usage: .venv/bin/python benchmarks/fuzz_loaders.py [--minutes 3] [--kinds json png npz run] [--round 200]
+(run: a run folder's run.json / trace.json / npz files, read by ``load_run``)
 Prints the examples run per kind, how many loaded / were refused with a typed error,
 and every other exception (the minimal failing example hypothesis shrank it to).
 Exit status 1 when any bug was found. Not a unit test.
@@ -22,16 +23,23 @@ from hypothesis import HealthCheck, given, settings
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repo root: tests.* helpers
 
-from tests.core.robustness._fuzz import apply, check_loads, corruptions  # noqa: E402
+from tests.core.robustness._fuzz import (  # noqa: E402
+    apply,
+    check_loads,
+    check_run_loads,
+    corruptions,
+    run_corruptions,
+)
 
 
 def _round(kind: str, n: int, tmp: Path, outcomes: Counter):
     """One hypothesis run of ``n`` fresh examples of ``kind`` (database=None: nothing replayed)."""
 
     @settings(max_examples=n, deadline=None, database=None, suppress_health_check=list(HealthCheck))
-    @given(corruptions(kinds=(kind,)))
+    @given(run_corruptions() if kind == "run" else corruptions(kinds=(kind,)))
     def prop(c):
-        outcomes[(kind, check_loads(apply(c, tmp)))] += 1
+        check = check_run_loads if kind == "run" else check_loads
+        outcomes[(kind, check(apply(c, tmp)))] += 1
 
     return prop
 
@@ -39,7 +47,7 @@ def _round(kind: str, n: int, tmp: Path, outcomes: Counter):
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--minutes", type=float, default=3.0)
-    ap.add_argument("--kinds", nargs="+", default=["json", "png", "npz"], choices=["json", "png", "npz"])
+    ap.add_argument("--kinds", nargs="+", default=["json", "png", "npz", "run"], choices=["json", "png", "npz", "run"])
     ap.add_argument("--round", type=int, default=200, help="examples per hypothesis round")
     args = ap.parse_args()
 

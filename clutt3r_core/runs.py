@@ -132,18 +132,22 @@ def load_run(folder: str | Path):
     info = read_run_info(folder)
     a, c = _read_npz(folder / "instances.npz"), _read_npz(folder / "cloud.npz")
     try:
+        trace = load_trace(folder / "trace")
+    except SceneFileError:
+        raise
+    except (KeyError, TypeError, IndexError, AttributeError, ValueError, OverflowError) as e:
+        # a trace edited or damaged by hand (found by fuzzing trace.json: non-UTF-8 bytes, ragged
+        # lists, out-of-range ints); SceneError is a ValueError and lands here too
+        raise SceneFileError(folder / "trace", f"damaged trace ({type(e).__name__}: {e})") from None
+    try:
         return Segmentation(
             points=a["points"], colors=a["colors"], normals=c["normals"], counts=c["counts"],
             instance=a["instance"], scores=a["scores"], sv_labels=c["sv_labels"], sv_support=c["sv_support"],
-            trace=load_trace(folder / "trace"), scene_name=info.scene_name, warnings=info.warnings,
+            trace=trace, scene_name=info.scene_name, warnings=info.warnings,
         )
     except KeyError as e:
         raise SceneFileError(folder, f"run arrays lack {e}") from None
-    except SceneFileError:
-        raise
-    except (TypeError, IndexError, AttributeError) as e:  # a trace.json edited or cut short by hand
-        raise SceneFileError(folder / "trace", f"damaged trace: {type(e).__name__}: {e}") from None
-    except SceneError as e:  # arrays of the wrong shape: a damaged or hand-edited run
+    except (SceneError, ValueError, TypeError) as e:  # arrays of the wrong shape or kind: a damaged run
         raise SceneFileError(folder, f"inconsistent run arrays: {e}") from None
 
 

@@ -16,6 +16,11 @@ visible masks). A corruption, drawn by hypothesis, breaks one file of a fresh co
 
 The property (``check_loads``): ``load_scene`` returns a Scene or raises a ``Clutt3rError``;
 anything else (an IndexError from numpy, a cv2.error, a zipfile error ...) is a bug.
+
+Run folders get the same treatment (``run_corruptions``, ``check_run_loads``): a run of a
+two-view scene with run.json or trace/trace.json mutated as JSON, or instances.npz,
+cloud.npz or trace/trace.npz mutated as npz; ``load_run`` must return a Segmentation or
+raise a ``Clutt3rError`` (the viewer, query, grasp and update all read runs through it).
 """
 
 from __future__ import annotations
@@ -34,7 +39,6 @@ from hypothesis import strategies as st
 
 from clutt3r_core.errors import Clutt3rError
 from clutt3r_core.io import load_scene, write_sample_layout
-from clutt3r_core.io.images import write_png
 from clutt3r_core.scene import GroundTruth, ObjectInfo, Scene
 from tests.core.io.test_bop import _write_bop_scene  # module level: it defines @given tests
 from tests.core.robustness._scenes import BOXES, make_scene, render
@@ -69,6 +73,30 @@ def base_scenes() -> dict[str, Path]:
     for root in (sample, bop):
         load_scene(root)  # sanity: the unbroken folders load
     return {"sample": sample, "bop": bop}
+
+
+RUN_JSON_FILES = ("run.json", "trace/trace.json")
+RUN_NPZ_FILES = ("instances.npz", "cloud.npz", "trace/trace.npz")
+
+
+@functools.lru_cache(maxsize=1)
+def base_run() -> Path:
+    """A valid run folder of a 2-view 160x120 scene (written once per process)."""
+    from clutt3r_core.pipeline import segment
+    from clutt3r_core.runs import save_run
+
+    return save_run(segment(make_scene(2)), base_scenes()["sample"].parent / "run")
+
+
+def check_run_loads(root: Path) -> str:
+    """The run property: "ok" or "error" (a Clutt3rError); anything else propagates."""
+    from clutt3r_core.runs import load_run
+
+    try:
+        load_run(root)
+    except Clutt3rError:
+        return "error"
+    return "ok"
 
 
 def check_loads(root: Path) -> str:
@@ -191,12 +219,28 @@ def corruptions(draw, kinds=("json", "png", "npz")) -> tuple[str, str, bytes]:
     return layout, rel, new
 
 
+@st.composite
+def run_corruptions(draw) -> tuple[str, str, bytes]:
+    """("run", file relative to the run folder, its new bytes)."""
+    base = base_run()
+    if draw(st.booleans()):
+        rel = draw(st.sampled_from(RUN_JSON_FILES))
+        data = (base / rel).read_bytes()
+        new = json.dumps(draw(mutated_json(json.loads(data)))).encode() if draw(st.booleans()) else draw(
+            mutated_bytes(data))
+    else:
+        rel = draw(st.sampled_from(RUN_NPZ_FILES))
+        data = (base / rel).read_bytes()
+        new = draw(mutated_bytes(data)) if draw(st.booleans()) else draw(other_npz())
+    return "run", rel, new
+
+
 def apply(corruption: tuple[str, str, bytes], workdir: Path) -> Path:
     """A copy of the corruption's base scene in ``workdir`` with the file replaced; its root."""
     layout, rel, new = corruption
     root = workdir / layout
     if root.exists():
         shutil.rmtree(root)
-    shutil.copytree(base_scenes()[layout], root)
+    shutil.copytree(base_run() if layout == "run" else base_scenes()[layout], root)
     (root / rel).write_bytes(new)
     return root

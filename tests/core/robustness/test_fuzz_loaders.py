@@ -1,5 +1,6 @@
 """Fuzzed scene loaders (issue 14): random corruptions of transforms.json, BOP camera files,
-PNG bytes and npz files never raise anything but the project's typed errors.
+PNG bytes and npz files never raise anything but the project's typed errors; nor do
+corrupted run folders (run.json, trace.json, the run's npz files) read by ``load_run``.
 
 Bounded here (CI); ``benchmarks/fuzz_loaders.py`` runs the same property for minutes.
 """
@@ -11,7 +12,7 @@ from pathlib import Path
 
 from hypothesis import HealthCheck, given, settings
 
-from tests.core.robustness._fuzz import apply, check_loads, corruptions
+from tests.core.robustness._fuzz import apply, check_loads, check_run_loads, corruptions, run_corruptions
 
 _SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
@@ -37,3 +38,10 @@ def test_fuzz_png_bytes(c):
 @given(corruptions(kinds=("npz",)))
 def test_fuzz_npz_files(c):
     _check(c)
+
+
+@_SETTINGS
+@given(run_corruptions())
+def test_fuzz_run_folders(c):
+    with tempfile.TemporaryDirectory() as tmp:
+        check_run_loads(apply(c, Path(tmp)))
