@@ -32,10 +32,18 @@ instances so far, deleted ones included); ``Merge`` and ``Delete`` mark ids dele
 renumbering (``CorrectedLabels.compact`` renumbers for export). Conventions: docs/conventions.md
 (ids 0-based, -1 = none).
 
+Undo / redo cost O(N + changed points), whatever the history: each active edit keeps its
+inverse delta (``clutt3r_core.correction_undo``); the editor's stacks are kept incrementally.
+The snapshot is a checkpoint: labels + the active edits' inverses + the number of log entries
+it reflects + the SHA-256 of those log bytes (a running hash, so saving never re-reads the
+log). Reopening loads it when it is a prefix state of this very log and replays only the
+entries after it (undos of older edits included, through the stored inverses).
+
 The operations and their pure replay live in ``clutt3r_core.corrections`` (re-exported here);
-this module is the log on disk. It stays one module (about 540 lines) on purpose: the
+this module is the log on disk. It stays one module (about 640 lines) on purpose: the
 ``Annotations`` class and the log-format helpers share the byte-level invariants above (entry
-offsets, the lock, the torn-tail cut, the snapshot's prefix hash), which are audited together.
+offsets, the lock, the torn-tail cut, the checkpoint's prefix hash, the stacks the tail
+replay continues), which are audited together.
 """
 
 from __future__ import annotations
@@ -63,15 +71,13 @@ from clutt3r_core.corrections import (  # noqa: F401  (re-exported: the public n
     SetCategory,
     Split,
     Undo,
-    Inverse,
     _initial,
     active_edits,
     apply,
-    apply_edit,
-    revert,
     op_from_json,
     op_to_json,
 )
+from clutt3r_core.correction_undo import Inverse, apply_edit, inverses_from_arrays, inverses_to_arrays, revert
 from clutt3r_core.errors import SceneError, SceneFileError
 from clutt3r_core.io.images import atomic_write_bytes
 
@@ -362,7 +368,7 @@ class Annotations:
                 if len(lab.instance) != len(self.base.instance):
                     return 0
                 active, redo = active_edits(parsed.ops[:n])
-                inverse = _inverses_from(z, active)
+                inverse = inverses_from_arrays(z, active)
         except (OSError, ValueError, KeyError, SceneError):
             return 0  # a cache: an unreadable or older-format snapshot is rebuilt from the log
         self._labels, self._inverse = lab, inverse
@@ -554,7 +560,7 @@ class Annotations:
                 instance=lab.instance, scores=lab.scores, categories=np.array(lab.categories, dtype=str),
                 deleted=lab.deleted, num_ops=np.int64(n), log_sha256=np.array(digest),
                 instances_sha256=np.array(self._instances_sha),
-                **_inverses_arrays(self._active, self._inverse)))
+                **inverses_to_arrays(self._active, self._inverse)))
             self._saved_ops = n
             self._saved_time = time.time()
             return self.snapshot_path
@@ -597,33 +603,6 @@ def _npz_plain(**arrays: np.ndarray) -> bytes:
     buf = io.BytesIO()
     np.savez(buf, **arrays)
     return buf.getvalue()
-
-
-def _inverses_arrays(active: list[int], inverse: dict[int, Inverse]) -> dict[str, np.ndarray]:
-    """The inverses of the active edits as flat arrays (offsets + concatenation) for the snapshot."""
-    invs = [inverse[i] for i in active]
-    off = np.cumsum([0] + [len(v.points) for v in invs]).astype(np.int64)
-    doff = np.cumsum([0] + [len(v.undeleted) for v in invs]).astype(np.int64)
-    cat = lambda f: np.concatenate(f) if f else np.zeros(0, np.int32)  # noqa: E731
-    return dict(
-        inv_edit=np.asarray(active, np.int64), inv_off=off,
-        inv_points=cat([v.points for v in invs]).astype(np.int32), inv_old=cat([v.old for v in invs]).astype(np.int32),
-        inv_k=np.asarray([v.num_instances for v in invs], np.int64),
-        inv_cat_id=np.asarray([v.category[0] for v in invs], np.int64),
-        inv_cat_text=np.array([v.category[1] for v in invs] or [""], dtype=str)[: len(invs)],
-        inv_del_off=doff, inv_del=np.asarray([d for v in invs for d in v.undeleted], np.int64))
-
-
-def _inverses_from(z, active: tuple[int, ...]) -> dict[int, Inverse]:
-    """Inverse of ``_inverses_arrays``; KeyError / SceneError when absent or not these edits."""
-    edits = z["inv_edit"]
-    if tuple(edits.tolist()) != tuple(active):
-        raise SceneError("snapshot inverses are not the active edits")
-    off, pts, old, k = z["inv_off"], z["inv_points"], z["inv_old"], z["inv_k"]
-    cid, ctext, doff, dl = z["inv_cat_id"], z["inv_cat_text"], z["inv_del_off"], z["inv_del"]
-    return {int(e): Inverse(pts[off[j]:off[j + 1]], old[off[j]:off[j + 1]], int(k[j]),
-                            (int(cid[j]), str(ctext[j])), tuple(dl[doff[j]:doff[j + 1]].tolist()))
-            for j, e in enumerate(edits)}
 
 
 def _npz_len(path: Path) -> int:

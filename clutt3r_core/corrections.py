@@ -33,9 +33,6 @@ __all__ = [
     "apply",
     "op_to_json",
     "op_from_json",
-    "Inverse",
-    "apply_edit",
-    "revert",
     "selection_fields",
     "category_suggestions",
 ]
@@ -430,60 +427,6 @@ def apply(segmentation, ops) -> CorrectedLabels:
         except SceneError as e:
             raise SceneError(f"entry {i}: {e}") from None
     return lab
-
-
-# -- constant-time undo ----------------------------------------------------------------
-
-
-@dataclass(frozen=True, eq=False)
-class Inverse:
-    """What one edit changed, enough to revert it in O(changed points + K) (no replay).
-
-    Valid only on the labels right after that edit (the editor's stack discipline guarantees it:
-    an edit is undone only when every later edit is undone).
-
-    Attributes:
-        points: (M,) int32 point indices whose instance the edit changed.
-        old: (M,) int32 their instance before the edit.
-        num_instances: K before the edit (a Split appended one id; truncated on revert).
-        category: (id, text before) of a SetCategory, (-1, "") otherwise.
-        undeleted: ids the edit marked deleted (Merge / Delete), cleared on revert.
-    """
-
-    points: np.ndarray
-    old: np.ndarray
-    num_instances: int
-    category: tuple[int, str] = (-1, "")
-    undeleted: tuple[int, ...] = ()
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "points", np.asarray(self.points, np.int32).reshape(-1))
-        object.__setattr__(self, "old", np.asarray(self.old, np.int32).reshape(-1))
-        if self.points.shape != self.old.shape:
-            raise SceneError("Inverse: points and old must have the same length")
-
-
-def apply_edit(base: BaseLabels, lab: CorrectedLabels, op: EditOp) -> tuple[CorrectedLabels, Inverse]:
-    """``op`` on ``lab`` (pure, new arrays) and its inverse. O(N) vectorised, whatever the history."""
-    new = _apply_edit(base, lab, op)
-    changed = np.flatnonzero(new.instance != lab.instance).astype(np.int32)
-    cat = (int(op.instance), lab.categories[op.instance]) if isinstance(op, SetCategory) else (-1, "")
-    und = (op.merged if isinstance(op, Merge) else (int(op.instance),) if isinstance(op, Delete) else ())
-    return new, Inverse(changed, lab.instance[changed], lab.num_instances, cat, tuple(und))
-
-
-def revert(lab: CorrectedLabels, inv: Inverse) -> CorrectedLabels:
-    """The labels before the edit whose inverse is ``inv`` (``lab``: the labels right after it)."""
-    inst = lab.instance.copy()
-    inst[inv.points] = inv.old
-    k = inv.num_instances
-    cats = list(lab.categories[:k])
-    if inv.category[0] >= 0:
-        cats[inv.category[0]] = inv.category[1]
-    deleted = lab.deleted[:k].copy()
-    if inv.undeleted:
-        deleted[list(inv.undeleted)] = False
-    return CorrectedLabels(inst, lab.scores[:k].copy(), tuple(cats), deleted)
 
 
 # -- selections ------------------------------------------------------------------------
