@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, fields
+from functools import cached_property
 from typing import Union
 
 import numpy as np
@@ -263,6 +264,32 @@ class BaseLabels:
     @property
     def num_supervoxels(self) -> int:
         return int(self.sv_labels.max()) + 1 if len(self.sv_labels) else 0
+
+    @cached_property
+    def _sv_index(self) -> tuple[np.ndarray, np.ndarray]:
+        """(order, starts): points of super-voxel s are order[starts[s]:starts[s + 1]] (built once)."""
+        order = np.argsort(self.sv_labels, kind="stable")
+        starts = np.searchsorted(self.sv_labels[order], np.arange(self.num_supervoxels + 1))
+        return order, starts
+
+    def selection_indices(self, supervoxels, points, what: str = "selection") -> np.ndarray:
+        """(M,) int64 sorted unique point indices named by ``supervoxels`` and ``points``: the
+        same set as the edit's boolean selection, in O(M log M) instead of O(N); same errors."""
+        parts = []
+        if len(supervoxels):
+            sv = np.asarray(supervoxels, np.int64)
+            ks = self.num_supervoxels
+            if sv.max() >= ks:
+                raise SceneError(f"{what}: super-voxel {int(sv.max())} does not exist (0..{ks - 1})")
+            order, starts = self._sv_index
+            parts += [order[starts[k]:starts[k + 1]] for k in np.unique(sv)]
+        if len(points):
+            p = np.asarray(points, np.int64)
+            n = len(self.instance)
+            if p.max() >= n:
+                raise SceneError(f"{what}: point {int(p.max())} does not exist (0..{n - 1})")
+            parts.append(p)
+        return np.unique(np.concatenate(parts)) if parts else np.zeros(0, np.int64)
 
 
 @dataclass(frozen=True, eq=False)

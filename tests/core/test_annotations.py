@@ -537,3 +537,26 @@ def test_category_suggestions_most_used_first_then_extra(base):
     assert category_suggestions(lab, "b", extra=("banana", "mug")) == ("bowl", "banana")
     lab = apply(base, [SetCategory(0, "mug"), Delete(0)])
     assert category_suggestions(lab) == ()  # deleted instances do not suggest
+
+
+@settings(max_examples=80, deadline=None)
+@given(actions=st.lists(_edit, min_size=1, max_size=10), seed=st.integers(0, 5))
+def test_property_sparse_apply_and_revert_match_the_replay(actions, seed):
+    """correction_undo.apply_edit (O(selection)) == corrections._apply_edit (the replay's),
+    and revert(apply_edit(x)) == x, for any valid edit on any reachable state."""
+    from clutt3r_core.correction_undo import apply_edit, revert
+    from clutt3r_core.corrections import _apply_edit, _initial
+
+    base = make_base(seed=seed)
+    lab = _initial(base)
+    for op in actions:
+        try:
+            ref = _apply_edit(base, lab, op)
+        except SceneError:
+            with pytest.raises(SceneError):
+                apply_edit(base, lab, op)
+            continue
+        new, inv = apply_edit(base, lab, op)
+        assert new.equals(ref)
+        assert revert(new, inv).equals(lab)
+        lab = new
