@@ -296,7 +296,8 @@ def plan_antipodal(request: GraspRequest, config: AntipodalConfig = AntipodalCon
     stats = PlanStats(target_points=len(tp), pairs=len(P))
     if len(P) == 0:
         return empty(f"no grasp: no antipodal contact pair on the target's {len(tp)} points fits the hand "
-                     f"(opening <= {g.max_width} m, normals within {cfg.pair_angle_deg} deg)", stats)
+                     f"(opening <= {g.max_width} m, normals within {cfg.pair_angle_deg} deg, relaxed "
+                     f"{cfg.relaxed_angle_deg} deg)", stats)
 
     # -- gripper frames: x closing, z approach swept around x, y = z x x
     mid = (P + Q) / 2
