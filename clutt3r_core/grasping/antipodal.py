@@ -438,8 +438,7 @@ def plan_antipodal(request: GraspRequest, config: AntipodalConfig = AntipodalCon
     T = np.tile(np.eye(4), (len(keep), 1, 1))
     T[:, :3, :3] = R[keep]
     T[:, :3, 3] = centre[keep]
-    contacts = np.stack([P[ip[keep]], Q[ip[keep]]], axis=1).astype(np.float32)
-    # contacts listed x < 0 finger first: P is at -dist/2 along x by construction
+    contacts = _contacts(tp, T, width[ip[keep]], g, np.stack([P[ip[keep]], Q[ip[keep]]], axis=1))
     secs["score"] = time.perf_counter() - t0 - sum(secs.values())
     secs["total"] = time.perf_counter() - t0
     stats = PlanStats(**{**stats.__dict__, "returned": len(keep), "seconds": secs})
@@ -447,6 +446,20 @@ def plan_antipodal(request: GraspRequest, config: AntipodalConfig = AntipodalCon
     gs = GraspSet(T, width[ip[keep]].astype(np.float32), score[keep].astype(np.float32),
                   np.full(len(keep), inst, np.int32), contacts, msg)
     return gs, stats
+
+
+def _contacts(tp: np.ndarray, T: np.ndarray, widths: np.ndarray, g: GripperGeometry, fallback: np.ndarray) -> np.ndarray:
+    """(G, 2, 3) float32 expected contacts: the target points in each closing region with the
+    smallest and the largest gripper x (where the closing fingers first touch the fused surface;
+    the evaluator's definition on the true mesh); the pair's points where the region is empty."""
+    out = np.asarray(fallback, np.float32).copy()
+    for k in range(len(T)):
+        loc = (tp - T[k, :3, 3]) @ T[k, :3, :3]
+        inside = np.flatnonzero(g.boxes(float(widths[k]))["closing"].contains(loc))
+        if len(inside):
+            out[k, 0] = tp[inside[np.argmin(loc[inside, 0])]]
+            out[k, 1] = tp[inside[np.argmax(loc[inside, 0])]]
+    return out
 
 
 _BATCH = 384  # candidates per palm/unseen batch (ours: ~2 batches give 2 x max_grasps survivors)

@@ -113,3 +113,16 @@ def test_invariants_on_random_boxes(hx, hy, h, cx):
     req = box_request(boxes=boxes)
     gs, _ = plan_antipodal(req)
     check_invariants(req, gs)
+
+
+def test_contacts_are_the_first_touch_points_inside_the_closing_region():
+    req = box_request()
+    gs, _ = plan_antipodal(req)
+    tp = req.target_points
+    for T, w, c in zip(gs.poses[:5], gs.widths[:5], gs.contacts[:5]):
+        loc = (c - T[:3, 3]) @ T[:3, :3]
+        assert FRANKA.boxes(float(w))["closing"].contains(loc).all()
+        assert loc[0, 0] < 0 < loc[1, 0]  # x < 0 finger first
+        inside = FRANKA.boxes(float(w))["closing"].contains((tp - T[:3, 3]) @ T[:3, :3])
+        x_in = ((tp[inside] - T[:3, 3]) @ T[:3, :3])[:, 0]
+        np.testing.assert_allclose(loc[:, 0], [x_in.min(), x_in.max()], atol=1e-5)
