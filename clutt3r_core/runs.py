@@ -18,8 +18,6 @@ from __future__ import annotations
 
 import json
 import os
-import zipfile
-import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,7 +25,7 @@ import numpy as np
 
 from clutt3r_core.diagnostics import RunWarning
 from clutt3r_core.errors import SceneError, SceneFileError
-from clutt3r_core.io.images import atomic_write_bytes, atomic_write_npz
+from clutt3r_core.io.images import NPZ_READ_ERRORS, atomic_write_bytes, atomic_write_npz
 
 __all__ = [
     "RUN_FILES",
@@ -156,7 +154,7 @@ def _read_npz(path: Path) -> dict[str, np.ndarray]:
     try:
         with np.load(path) as f:
             return dict(f)
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as e:
+    except NPZ_READ_ERRORS as e:
         raise SceneFileError(path, f"unreadable run arrays ({e}); the run is damaged, segment the scene again") from None
 
 

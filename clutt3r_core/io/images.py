@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import os
 import tempfile
+import zipfile
 import zlib
 from pathlib import Path
 
@@ -28,8 +29,16 @@ from clutt3r_core.errors import SceneFileError
 
 __all__ = [
     "read_rgb", "read_depth_mm", "read_mask", "read_label_png", "write_png", "atomic_write_bytes", "npz_bytes",
-    "atomic_write_npz",
+    "atomic_write_npz", "NPZ_READ_ERRORS",
 ]
+
+NPZ_READ_ERRORS: tuple[type[BaseException], ...] = (
+    OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error,
+    NotImplementedError,  # zipfile: an unknown zip version or compression method (a flipped header byte)
+    RuntimeError,  # zipfile: a member flagged as encrypted
+)
+"""What ``np.load`` of a damaged .npz can raise (found by fuzzing, tests/core/robustness); every
+reader of an npz file turns these into a SceneFileError naming the file."""
 
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"

@@ -26,8 +26,6 @@ from __future__ import annotations
 
 import json
 import re
-import zipfile
-import zlib
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -36,6 +34,7 @@ import numpy as np
 from clutt3r_core.diagnostics import RunWarning
 from clutt3r_core.errors import SceneError, SceneFileError
 from clutt3r_core.io.images import (
+    NPZ_READ_ERRORS,
     atomic_write_bytes,
     atomic_write_npz,
     read_depth_mm,
@@ -261,6 +260,8 @@ def _load_gt(root: Path, views: list[View]) -> GroundTruth:
         raise SceneFileError(opath, "must be a list of objects")
     objects = []
     for o in raw:
+        if not isinstance(o, dict):  # found by benchmarks/fuzz_loaders.py: a null entry raised AttributeError
+            raise SceneFileError(opath, f"each object must be a JSON object, got {o!r}")
         try:
             T = o.get("T_world_object")
             objects.append(
@@ -286,7 +287,7 @@ def _load_gt(root: Path, views: list[View]) -> GroundTruth:
         try:
             with np.load(ppath) as z:
                 points, labels = z["points"], z["labels"]
-        except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as e:
+        except (KeyError, *NPZ_READ_ERRORS) as e:
             raise SceneFileError(ppath, f"unreadable ground-truth points: {e}") from None
         # found by tests/core/robustness/test_fuzz_loaders.py: a scalar 'points' reached GroundTruth's reshape
         if points.ndim != 2 or points.shape[1] != 3 or points.dtype.kind not in "fiu":

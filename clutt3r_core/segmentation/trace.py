@@ -221,7 +221,8 @@ def load_trace(folder: str | Path) -> Trace:
     config = config_from_json(meta["config"], jpath)
     try:
         z = dict(np.load(npath))
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as e:  # truncated / corrupt npz
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error, NotImplementedError, RuntimeError) as e:
+        # a truncated / corrupt npz (zipfile: unknown version or method, member flagged encrypted)
         raise SceneFileError(npath, f"unreadable: {e}") from None
     occ = np.zeros(tuple(z["occ_shape"]), np.float32)
     occ[z["occ_rows"], z["occ_cols"]] = z["occ_vals"]

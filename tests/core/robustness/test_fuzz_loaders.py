@@ -10,7 +10,10 @@ from __future__ import annotations
 import tempfile
 from pathlib import Path
 
-from hypothesis import HealthCheck, given, settings
+import numpy as np
+from hypothesis import HealthCheck, example, given, settings
+
+from clutt3r_core.io.images import npz_bytes
 
 from tests.core.robustness._fuzz import apply, check_loads, check_run_loads, corruptions, run_corruptions
 
@@ -24,6 +27,7 @@ def _check(c) -> None:
 
 @_SETTINGS
 @given(corruptions(kinds=("json",)))
+@example(("sample", "gt/objects.json", b"[null]"))  # found by the long run: AttributeError
 def test_fuzz_json_files(c):
     _check(c)
 
@@ -36,6 +40,7 @@ def test_fuzz_png_bytes(c):
 
 @_SETTINGS
 @given(corruptions(kinds=("npz",)))
+@example(("sample", "gt/points.npz", npz_bytes(points=np.float32(1), labels=np.float32(1))))  # was ValueError
 def test_fuzz_npz_files(c):
     _check(c)
 
