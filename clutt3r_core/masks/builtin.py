@@ -111,8 +111,8 @@ class BuiltinMaskConfig:
     w_jump: float = 1.0
     w_crease: float = 2.0
     convex_factor: float = 0.1
-    w_colour: float = 1.0
-    levels: tuple[float, ...] = (0.15, 0.3, 0.5)
+    w_colour: float = 0.3
+    levels: tuple[float, ...] = (0.5,)
     min_area_frac: float = 4e-4
     max_area_frac: float = 0.3
 

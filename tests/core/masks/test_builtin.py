@@ -29,19 +29,32 @@ def _nested_or_disjoint(masks: np.ndarray) -> bool:
 
 
 def test_objects_parent_and_support():
+    """Default config: the separate box gets its own candidate, the two touching boxes (coplanar
+    front faces, only colour tells them apart) one under-segmented cluster candidate (colour is
+    weighted low on purpose, docs/masks.md), and the support plane none."""
     view, ids = box_view()
     c = builtin_candidates(view)
-    gt = np.stack([ids == k for k in range(3)])
-    best = mask_iou_matrix(gt, c.masks).max(axis=1)
-    assert (best >= 0.85).all(), best  # every box has its own candidate
-    touching = (ids == 0) | (ids == 1)  # the two touching boxes: one under-segmented parent, like Grounded SAM
-    assert mask_iou_matrix(touching[None], c.masks).max() >= 0.9
+    gt = np.stack([ids == 2, (ids == 0) | (ids == 1)])
+    assert (mask_iou_matrix(gt, c.masks).max(axis=1) >= 0.9).all()
     table = ids == -1
     assert (c.masks & table).sum() < 0.02 * c.masks.sum()  # the support plane is removed
-    q = view_quality(c, ids)
-    assert q.num_parents >= 1 and q.num_leaves >= 3
     assert c.ids.tolist() == list(range(1, len(c) + 1))
     assert c.scores is not None and ((c.scores > 0) & (c.scores <= 1)).all()
+
+
+def test_colour_split_gives_parent_with_children():
+    """With colour weighted fully, the cluster is a parent and each touching box a leaf inside it."""
+    view, ids = box_view()
+    c = builtin_candidates(view, BuiltinMaskConfig(w_colour=1.0))
+    gt = np.stack([ids == k for k in range(3)] + [(ids == 0) | (ids == 1)])
+    iou = mask_iou_matrix(gt, c.masks)
+    assert (iou.max(axis=1) >= 0.9).all(), iou.max(axis=1)
+    q = view_quality(c, ids)
+    assert q.num_parents >= 1 and q.num_leaves >= 3
+    parent = c.masks[int(iou[3].argmax())]
+    for k in (0, 1):  # each box's candidate lies inside the cluster's
+        child = c.masks[int(iou[k].argmax())]
+        assert (child & ~parent).sum() == 0
 
 
 def test_hierarchy_nested_by_construction_and_deterministic():
@@ -70,8 +83,9 @@ def test_large_view_is_processed_at_work_width_and_returned_full_size():
     view, ids = box_view(width=960, height=720, f=900.0)
     c = builtin_candidates(view)
     assert c.shape == (720, 960)
-    best = mask_iou_matrix(np.stack([ids == k for k in range(3)]), c.masks).max(axis=1)
-    assert (best >= 0.8).all(), best
+    gt = np.stack([ids == 2, (ids == 0) | (ids == 1)])
+    assert (mask_iou_matrix(gt, c.masks).max(axis=1) >= 0.85).all()
+
 
 
 def test_errors():
@@ -95,4 +109,4 @@ def test_fill_masks_gives_every_initial_view_candidates():
     gen = create_mask_generator("builtin")
     assert gen.name == "builtin"
     filled = fill_masks(sc, gen)
-    assert scene_has_masks(filled) and all(len(v.masks) >= 3 for v in filled.initial_views)
+    assert scene_has_masks(filled) and all(len(v.masks) >= 2 for v in filled.initial_views)
