@@ -133,7 +133,8 @@ def inverses_to_arrays(active: list[int], inverse: dict[int, Inverse]) -> dict[s
 def inverses_from_arrays(z, active: tuple[int, ...]) -> dict[int, Inverse]:
     """Inverse of ``inverses_to_arrays``; KeyError / SceneError when absent or not these edits."""
     edits = z["inv_edit"]
-    if tuple(edits.tolist()) != tuple(active):
+    # the top of the active stack (the checkpoint keeps the most recent ones only)
+    if len(edits) > len(active) or (len(edits) and tuple(edits.tolist()) != tuple(active[-len(edits):])):
         raise SceneError("snapshot inverses are not the active edits")
     off, pts, old, k = z["inv_off"], z["inv_points"], z["inv_old"], z["inv_k"]
     cid, ctext, doff, dl = z["inv_cat_id"], z["inv_cat_text"], z["inv_del_off"], z["inv_del"]

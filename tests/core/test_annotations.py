@@ -560,3 +560,26 @@ def test_property_sparse_apply_and_revert_match_the_replay(actions, seed):
         assert new.equals(ref)
         assert revert(new, inv).equals(lab)
         lab = new
+
+
+def test_undo_deeper_than_the_checkpoint_keeps_rebuilds_once(run, base, monkeypatch):
+    import clutt3r_core.annotations as mod
+
+    monkeypatch.setattr(mod, "CHECKPOINT_UNDO_DEPTH", 2)
+    ops = [SetCategory(0, "a"), Split(supervoxels=(0,)), Merge(1, 2), SetCategory(1, "b"), Delete(3)]
+    with Annotations.open(run, author="t") as a:
+        for op in ops:
+            a.apply_op(op)
+        a.save()
+    with np.load(run / SNAPSHOT_NAME) as z:
+        assert z["inv_edit"].tolist() == [3, 4]  # the top two only
+    b = Annotations.open(run, author="t")
+    assert b.saved_ops == 5 and set(b._inverse) == {3, 4}
+    for k in range(5, 0, -1):  # undo everything: the third undo rebuilds, the rest are O(1)
+        b.undo()
+        assert b.current.equals(apply(base, ops[: k - 1]))
+    for k in range(1, 6):
+        b.redo()
+        assert b.current.equals(apply(base, ops[:k]))
+    assert apply(base, b.ops).equals(b.current)
+    b.close()
