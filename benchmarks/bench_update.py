@@ -168,9 +168,11 @@ def main() -> None:
     ap.add_argument("--dof", choices=("se3", "yaw", "yaw-then-se3"), default="yaw")
     ap.add_argument("--no-verify", action="store_true", help="the paper's rule: IoU < tau_IoU is displaced")
     ap.add_argument("--no-early-exit", action="store_true", help="always run the fine stage")
+    ap.add_argument("--min-fit-iou", type=float, default=ChangeConfig().min_fit_iou,
+                    help="ChangeConfig.min_fit_iou (appearance matches below this fit are judged unmatched)")
     ap.add_argument("--tag", default="", help="suffix of results_<tag>.json")
     a = ap.parse_args()
-    cfg = UpdateConfig(change=ChangeConfig(verify=not a.no_verify),
+    cfg = UpdateConfig(change=ChangeConfig(verify=not a.no_verify, min_fit_iou=a.min_fit_iou),
                        pose=replace(PoseConfig(), dof=a.dof, early_exit=not a.no_early_exit))
     a.out.mkdir(parents=True, exist_ok=True)
     rows = []
