@@ -138,8 +138,8 @@ def main() -> None:
             r, _ = evaluate_instances(seg.points, seg.instance, seg.scores, sc.ground_truth)
             aps.append(r.ap)
             ap50s.append(r.ap50)
-        ap_rows[label] = {"tau_sem": tau, "AP": 100 * float(np.mean(aps)), "AP50": 100 * float(np.mean(ap50s)),
-                          "per_scene_AP": [round(100 * a, 1) for a in aps]}
+        ap_rows[label] = {"tau_sem": tau, "AP": float(np.mean(aps)), "AP50": float(np.mean(ap50s)),  # APResult is in %
+                          "per_scene_AP": [round(a, 1) for a in aps]}
         print(json.dumps({label: ap_rows[label]}), file=sys.stderr)
     rep["ap"] = ap_rows
     if args.samples:
