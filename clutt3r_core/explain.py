@@ -405,6 +405,9 @@ class SupervoxelExplanation:
             lines.append(f"winner group {self.winner_group} with vote {self.winner_vote:.3f}, runner-up vote "
                          f"{self.runner_up_vote:.3f}; winner's best mask covers {self.coverage:.2f} "
                          f"(min_coverage {self.min_coverage:.2f})")
+            if self.runner_up_vote >= self.winner_vote > 0:
+                lines.append("a tie: the vote went to the group with the lower index (canonical order), "
+                             "not to the better one")
         if self.reason == "group_dropped" and np.isfinite(self.winner_points):
             lines.append(f"winner group won {self.winner_points:.0f} points (min_instance_points "
                          f"{self.min_instance_points})")

@@ -198,6 +198,8 @@ class ReplayPanel(Panel):
         if self.focus is not None:
             words += ("  \n" if words else "") + self._focus_text(d, n)
         self.step_text.content = words
+        if sg is not None:
+            self._dim_cloud(s)
         for which, members, col in (("a", sg[0] if sg else (), COLOUR_A), ("b", sg[1] if sg else (), COLOUR_B)):
             handle = getattr(self, f"cloud_{which}")
             if not members:
@@ -218,6 +220,17 @@ class ReplayPanel(Panel):
             if img is not None:
                 self.image.image = img
             self.image.visible = img is not None
+
+    @staticmethod
+    def _dim_cloud(s: "Session") -> None:
+        # The step's groups are drawn over the cloud in orange and blue, colours the instance
+        # palette also uses: dim the cloud under them (the Scene panel refreshed it just before,
+        # panels refresh in PANELS order) so the two groups read at a glance.
+        from clutt3r_viewer.panels.scene import ScenePanel
+
+        sp = s.panel(ScenePanel)
+        if sp is not None:
+            sp.cloud.colors = (np.asarray(sp.cloud.colors, np.float32) * 0.35).astype(np.uint8)
 
     def _focus_text(self, d: ViewerData, n: int) -> str:
         from clutt3r_core.explain import group_history

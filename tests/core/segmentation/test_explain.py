@@ -238,3 +238,14 @@ def test_explain_command(tmp_path, capsys):
         explain_command(run, masks=("7:1", "1:1"))
     with pytest.raises(SceneError, match="FRAME:MASK"):
         explain_command(run, masks=("x", "1:1"))
+
+
+def test_a_tied_vote_is_called_a_tie():
+    # two single-mask groups that never merge (Jaccard 1/7, orthogonal embeddings) both cover
+    # super-voxel 0 fully: equal votes, the lower group index wins
+    spec = [(0, 1, None, occ(0, 1, 2, 3)), (1, 1, None, occ(0, 4, 5, 6))]
+    t, _ = make_trace(spec)
+    s = explain_supervoxel(t, 0)
+    assert s.winner_vote == s.runner_up_vote == pytest.approx(1.0) and s.winner_group == 0
+    assert "a tie" in s.text()
+    assert "a tie" not in explain_supervoxel(t, 1).text()
