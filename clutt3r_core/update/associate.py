@@ -113,7 +113,8 @@ class Association:
         mask_index: (K,) int64 index into the view's ``masks`` of the matched mask, -1 unmatched.
         match: (K,) how each was matched ("spatial", "semantic", "parent-spatial",
             "parent-semantic", "parent-upgrade", "" unmatched).
-        unmatched_status: (K,) "removed" / "occluded" for unmatched instances, "" otherwise.
+        unmatched_status: (K,) "removed" / "occluded" / "static" (still there, rule 5) for
+            unmatched instances, "" for matched ones.
         new_masks: indices into ``masks`` of unmatched masks that are new objects.
         s_spatial: (M, K) float32 S_spatial of every mask (by index into ``masks``) and instance.
         s_semantic: (M, K) float32 S_semantic.
@@ -183,7 +184,6 @@ def associate(
     mask_embeddings: np.ndarray,
     cfg: AssociationConfig = AssociationConfig(),
     tree: InstanceTree | None = None,
-    stored_depth_check: bool = True,
 ) -> Association:
     """Match ``view.masks`` to the projected stored instances (rules in the module docstring).
 

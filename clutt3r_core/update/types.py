@@ -310,9 +310,12 @@ class InstanceUpdate:
         iou_after: IoU after the update (the same for static; None when unmatched).
         T_world: (4, 4) world-frame motion for displaced, None otherwise.
         mask_id: id of the associated mask candidate of the new view, or -1.
-        match: how the mask was matched: "spatial", "semantic", "parent-spatial",
-            "parent-semantic" or "" when unmatched.
-        pose: the optimisation record (displaced only).
+        match: how it was matched (associate.py): "spatial", "semantic", "parent-spatial",
+            "parent-semantic", "parent-upgrade"; for unmatched instances "" or
+            "present-depth" / "present-colour" (static without a mask of its own);
+            "semantic-rejected" when an appearance match failed the fit check.
+        pose: the optimisation record (displaced, or flagged and then judged static /
+            unmatched by the verification), else None.
     """
 
     instance: int
