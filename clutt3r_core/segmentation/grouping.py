@@ -24,6 +24,14 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from clutt3r_core.errors import SceneError
+from clutt3r_core.segmentation.decisions import (
+    BLOCK_RULES,
+    RESIDUAL_REASONS,
+    BlockedPairs,
+    ResidualNotes,
+    StageStop,
+    stop_record,
+)
 from clutt3r_core.segmentation.trees import subtree_leaves
 
 __all__ = [
@@ -48,14 +56,6 @@ __all__ = [
 STAGE_SPATIAL = 0
 STAGE_SEMANTIC = 1
 STAGE_NAMES = ("spatial", "semantic")
-
-BLOCK_RULES = ("none", "one_mask_per_view", "overlap_gate")
-"""Codes of ``BlockedPairs.rule``: the rule that kept a pair whose score was >= tau out of the merge."""
-RULE_VIEW, RULE_GATE = 1, 2
-
-RESIDUAL_REASONS = ("substituted", "root", "parent_background", "sibling_grouped", "parent_taken")
-"""Codes of ``ResidualNotes.reason``: why a residual leaf was not replaced by its tree parent."""
-
 
 @dataclass(frozen=True)
 class GroupingConfig:
@@ -161,89 +161,6 @@ class Substitution:
     round: int
     parent: int
     replaced: tuple[int, ...]
-
-
-@dataclass(frozen=True)
-class StageStop:
-    """Why one stage of one round stopped merging (recorded for explanations, not used by the algorithm).
-
-    ``event`` is the number of events (``GroupingResult.events``) done when it stopped, so
-    ``Trace.groups_at(event)`` are the groups it left. ``best_score`` is the best score among
-    the pairs the rules allowed (NaN when no pair was left), below ``tau``; ``best_a``/``best_b``
-    are the first members of that pair (-1 = none). ``blocked_score`` is the best score among
-    pairs a rule excluded (NaN = none), ``blocked_rule`` that rule (``BLOCK_RULES``).
-    """
-
-    stage: str
-    round: int
-    event: int
-    n_groups: int
-    tau: float
-    best_score: float
-    best_a: int
-    best_b: int
-    blocked_score: float
-    blocked_rule: str
-
-
-@dataclass(frozen=True, eq=False)
-class BlockedPairs:
-    """Group pairs that a rule kept apart although their score reached the stage's tau.
-
-    Recorded at each stage stop (``stop`` indexes ``GroupingResult.stops``): the groups
-    are those of ``Trace.groups_at(stops[stop].event)``, named by their first member
-    (node index). Only pairs with score >= tau are kept: every other pair was also kept
-    apart by the threshold, which ``explain_pair`` recomputes from the leaf graph.
-
-    Attributes:
-        stop: (P,) int32 index into the stops.
-        a, b: (P,) int32 first members of the two groups (a < b).
-        rule: (P,) int8 ``BLOCK_RULES`` code.
-        score: (P,) float32 the stage's mean-linkage score of the pair (unitless, in [-1, 1]).
-    """
-
-    stop: np.ndarray
-    a: np.ndarray
-    b: np.ndarray
-    rule: np.ndarray
-    score: np.ndarray
-
-    def __post_init__(self) -> None:
-        n = len(self.stop)
-        for name in ("a", "b", "rule", "score"):
-            if getattr(self, name).shape != (n,):
-                raise SceneError(f"BlockedPairs.{name} must have shape ({n},)")
-
-    @staticmethod
-    def concat(parts: list["BlockedPairs"]) -> "BlockedPairs":
-        cat = lambda name, dt: np.concatenate([getattr(p, name) for p in parts]).astype(dt) if parts \
-            else np.zeros(0, dt)  # noqa: E731
-        return BlockedPairs(cat("stop", np.int32), cat("a", np.int32), cat("b", np.int32), cat("rule", np.int8),
-                            cat("score", np.float32))
-
-
-@dataclass(frozen=True, eq=False)
-class ResidualNotes:
-    """Every residual (a leaf alone in its group) the substitution examined and kept.
-
-    Attributes:
-        node: (R,) int32 the residual leaf.
-        round: (R,) int32 substitution round.
-        reason: (R,) int8 ``RESIDUAL_REASONS`` code (never 0: substituted leaves are in ``substitutions``).
-        other: (R,) int32 the parent (``parent_background``, ``parent_taken``) or the grouped
-            leaf under the parent (``sibling_grouped``); -1 for ``root``.
-    """
-
-    node: np.ndarray
-    round: np.ndarray
-    reason: np.ndarray
-    other: np.ndarray
-
-    def __post_init__(self) -> None:
-        n = len(self.node)
-        for name in ("round", "reason", "other"):
-            if getattr(self, name).shape != (n,):
-                raise SceneError(f"ResidualNotes.{name} must have shape ({n},)")
 
 
 @dataclass(frozen=True, eq=False)
@@ -390,7 +307,7 @@ def group_nodes(
         while True:
             if len(state.members) <= 1:
                 if record is not None:
-                    record.append(_stop_record(state, stage, tau, round_, len(steps), None, None))
+                    record.append(_record(state, stage, tau, round_, len(steps), None, None))
                 break
             valid = view_ok = state.valid(cfg.one_mask_per_view)
             if stage == STAGE_SEMANTIC and cfg.semantic_needs_overlap:
@@ -400,7 +317,7 @@ def group_nodes(
             best = score.flat[flat]
             if not np.isfinite(best) or best < tau:
                 if record is not None:
-                    record.append(_stop_record(state, stage, tau, round_, len(steps), view_ok, valid))
+                    record.append(_record(state, stage, tau, round_, len(steps), view_ok, valid))
                 break
             i, j = divmod(flat, score.shape[1])
             steps.append(
@@ -418,36 +335,11 @@ def group_nodes(
     return state.members, steps
 
 
-def _stop_record(state: _Groups, stage: int, tau: float, round_: int, n_steps: int,
-                 view_ok: np.ndarray | None, valid: np.ndarray | None) -> tuple[StageStop, BlockedPairs]:
-    """Why a stage stopped: its best allowed score and the pairs >= tau that a rule excluded."""
+def _record(state: _Groups, stage: int, tau: float, round_: int, n_steps: int,
+            view_ok: np.ndarray | None, valid: np.ndarray | None) -> tuple[StageStop, BlockedPairs]:
     first = np.array([m[0] for m in state.members], np.int32)
-    none = BlockedPairs(*(np.zeros(0, dt) for dt in (np.int32, np.int32, np.int32, np.int8, np.float32)))
-    if view_ok is None or valid is None:
-        return StageStop(STAGE_NAMES[stage], round_, n_steps, len(first), float(tau), float("nan"), -1, -1,
-                         float("nan"), BLOCK_RULES[0]), none
-    mean = state.mean(stage)
-    pair = np.triu(np.ones(mean.shape, bool), 1)
-    rule = np.zeros(mean.shape, np.int8)
-    rule[pair & ~view_ok] = RULE_VIEW
-    rule[pair & view_ok & ~valid] = RULE_GATE
-    allowed = np.where(valid, mean, -np.inf)
-    flat = int(np.argmax(allowed))
-    best = float(allowed.flat[flat])
-    bi, bj = divmod(flat, mean.shape[1])
-    blocked = np.where(rule > 0, mean, -np.inf)
-    bflat = int(np.argmax(blocked))
-    bbest = float(blocked.flat[bflat])
-    stop = StageStop(
-        stage=STAGE_NAMES[stage], round=round_, event=n_steps, n_groups=len(first), tau=float(tau),
-        best_score=best if np.isfinite(best) else float("nan"),
-        best_a=int(first[bi]) if np.isfinite(best) else -1, best_b=int(first[bj]) if np.isfinite(best) else -1,
-        blocked_score=bbest if np.isfinite(bbest) else float("nan"),
-        blocked_rule=BLOCK_RULES[int(rule.flat[bflat])] if np.isfinite(bbest) else BLOCK_RULES[0],
-    )
-    ii, jj = np.nonzero((rule > 0) & (mean >= tau))
-    return stop, BlockedPairs(np.zeros(len(ii), np.int32), first[ii], first[jj], rule[ii, jj],
-                              mean[ii, jj].astype(np.float32))
+    mean = state.mean(stage) if view_ok is not None else None
+    return stop_record(first, STAGE_NAMES[stage], tau, round_, n_steps, mean, view_ok, valid)
 
 
 def substitute_residuals(
