@@ -147,6 +147,8 @@ def load_sample_layout(root: str | Path, *, load_masks: bool = True, load_gt: bo
         for key in ("file_path", "depth_file_path"):
             if fr.get(key) is not None and not isinstance(fr[key], str):
                 raise SceneFileError(tpath, f"frame {i}: '{key}' must be a string, got {fr[key]!r}")
+        if not fr["file_path"]:  # found by benchmarks/fuzz_loaders.py: null reached Path() as a TypeError
+            raise SceneFileError(tpath, f"frame {i}: 'file_path' must name the frame's image, got {fr['file_path']!r}")
         K, w, h = _intrinsics(meta, fr, tpath)
         try:
             T = np.asarray(fr["transform_matrix"], dtype=np.float64)

@@ -28,6 +28,8 @@ def _check(c) -> None:
 @_SETTINGS
 @given(corruptions(kinds=("json",)))
 @example(("sample", "gt/objects.json", b"[null]"))  # found by the long run: AttributeError
+@example(("sample", "transforms.json", b'{"fl_x": 1, "fl_y": 1, "cx": 0, "cy": 0, "w": 32, "h": 24, "frames": '
+          b'[{"file_path": null, "transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}]}'))  # TypeError
 def test_fuzz_json_files(c):
     _check(c)
 
