@@ -11,6 +11,8 @@ Entities (world is z up, metres):
                                  on the timeline ``grouping_event`` (0 = leaves alone, n = after event n);
                                  only colours change per step
     log/grouping                 the text of each event, same timeline
+    world/updates/..., plots/update/..., updates/overlay, log/updates
+                                 scene updates, when the run has some (panels/update_sources.py)
 
 Saved with a recording stream's ``save`` (a file sink); no viewer is spawned.
 """
@@ -93,6 +95,10 @@ def export_rerun(data: ViewerData, out: str | Path, max_points: int = 50_000, im
             lab = data.replay_sv_group(n)[seg.sv_labels[idx]]
             rec.log("world/replay", rr.Points3D.from_fields(colors=label_colors(lab)))
             rec.log("log/grouping", rr.TextLog(event_text(tr, n).replace("  \n", " | ")))
+        if data.updates:  # scene updates (issue 10): pose iterations, loss/IoU, overlays
+            from clutt3r_viewer.panels.update_sources import export_updates_rerun
+
+            export_updates_rerun(rec, data, max_points)
     finally:
         rec.flush()
         rec.disconnect()

@@ -121,3 +121,45 @@ def update_pose_events(data) -> PoseIterations | None:
 
 register_update_loader(load_update_frames)
 register_event_source(update_pose_events)
+
+
+def export_updates_rerun(rec, data, max_points: int = 50_000) -> int:
+    """Log the update chain to a rerun recording (called by ``rerun_export.export_rerun``).
+
+    Entities: ``world/updates/points`` the moved instances' points on the timeline
+    ``pose_iteration`` (the same steps as the Replay source), ``plots/update/loss/I<k>`` and
+    ``plots/update/iou/I<k>`` per displaced instance on that timeline, ``updates/overlay`` the
+    before|after overlay and ``log/updates`` the status table on the timeline ``update``.
+    Returns the number of pose-iteration steps logged (0 without updates).
+    """
+    import rerun as rr
+
+    from clutt3r_viewer.data import lod_indices
+
+    for u_i, u in enumerate(data.updates):
+        rec.set_time("update", sequence=u_i + 1)
+        if u.rgb is not None:
+            rec.log("updates/overlay", rr.Image(np.ascontiguousarray(u.rgb)).compress(jpeg_quality=85))
+        rec.log("log/updates", rr.TextLog(f"frame {u.frame}\n{u.text}"))
+    src = update_pose_events(data)
+    if src is None:
+        return 0
+    moving = np.flatnonzero(src.instance >= 0)
+    idx = moving[lod_indices(len(moving), max_points)]
+    ups = [u for u in data.updates if u.result is not None]
+    rows = []  # (instance, loss, iou) per global step, in the order update_pose_events builds them
+    for u in ups:
+        rs = [r for r in u.result.instances if r.pose is not None]
+        if not rs:
+            continue
+        for t in range(max(len(r.pose.trace) for r in rs)):
+            rows.append([(r.instance, r.pose.trace.losses[min(t, len(r.pose.trace) - 1), 0],
+                          r.pose.trace.iou[min(t, len(r.pose.trace) - 1)]) for r in rs])
+    for n in range(src.num_events + 1):
+        rec.set_time("pose_iteration", sequence=n)
+        rec.log("world/updates/points", rr.Points3D(src.points(n, idx), colors=src.colors(n, idx), radii=0.003))
+        if n >= 1:
+            for k, loss, iou in rows[n - 1]:
+                rec.log(f"plots/update/loss/I{k}", rr.Scalars(float(loss)))
+                rec.log(f"plots/update/iou/I{k}", rr.Scalars(float(iou)))
+    return src.num_events
