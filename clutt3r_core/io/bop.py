@@ -44,6 +44,9 @@ __all__ = ["load_bop_scene", "is_bop_scene", "paint_instances", "voxel_labelled_
 # far finer than any object in the benchmarks (smallest YCB/GC6D parts are ~1 cm).
 GT_POINT_VOXEL_M = 0.002
 _THREADS = 8
+# ours: the farthest camera or object from the world origin a tabletop scene can have (1 km:
+# three orders of magnitude above any real capture, far below where voxel keys overflow)
+_MAX_TRANSLATION_M = 1000.0
 _RGB_EXTS = (".png", ".jpg", ".jpeg")
 
 
@@ -66,6 +69,12 @@ def _numbers(path: Path, entry: object, key: str, n: int, where: str, what: str)
 
 def _rigid_from_bop(path: Path, R: np.ndarray, t_mm: np.ndarray, where: str) -> np.ndarray:
     """4x4 metres transform from a BOP rotation (9,) and translation (3,) in millimetres."""
+    dist = float(np.linalg.norm(t_mm)) / 1000.0
+    if dist > _MAX_TRANSLATION_M:
+        # found by fuzzing: 1e300 mm passed as finite and overflowed in the GT voxel grid (numpy
+        # RuntimeWarnings on the terminal, garbage labels); no tabletop camera is that far away
+        raise SceneFileError(path, f"{where}: translation of {dist:.3g} m is implausible (BOP translations are "
+                                   f"millimetres; more than {_MAX_TRANSLATION_M:g} m is refused)")
     T = np.eye(4)
     T[:3, :3] = R.reshape(3, 3)
     T[:3, 3] = t_mm / 1000.0

@@ -52,3 +52,25 @@ def test_fuzz_npz_files(c):
 def test_fuzz_run_folders(c):
     with tempfile.TemporaryDirectory() as tmp:
         check_run_loads(apply(c, Path(tmp)))
+
+
+def test_bop_translation_beyond_a_km_is_refused_without_numpy_warnings(tmp_path):
+    # found by the long fuzz run: 1e300 mm was finite, so it passed, and overflowed in the GT grid
+    import json
+    import shutil
+    import warnings
+
+    import pytest
+
+    from clutt3r_core.errors import SceneFileError
+    from clutt3r_core.io import load_scene
+    from tests.core.robustness._fuzz import base_scenes
+
+    root = Path(shutil.copytree(base_scenes()["bop"], tmp_path / "bop"))
+    cams = json.loads((root / "scene_camera.json").read_text())
+    cams["1"]["cam_t_w2c"] = [1e300, 0.0, 0.0]
+    (root / "scene_camera.json").write_text(json.dumps(cams))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a numpy RuntimeWarning would reach the user's terminal
+        with pytest.raises(SceneFileError, match="image 1: cam_R_w2c/cam_t_w2c: translation of 1e\\+297 m is implausible"):
+            load_scene(root)
