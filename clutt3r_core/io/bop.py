@@ -69,7 +69,7 @@ def _numbers(path: Path, entry: object, key: str, n: int, where: str, what: str)
 
 def _rigid_from_bop(path: Path, R: np.ndarray, t_mm: np.ndarray, where: str) -> np.ndarray:
     """4x4 metres transform from a BOP rotation (9,) and translation (3,) in millimetres."""
-    dist = float(np.linalg.norm(t_mm)) / 1000.0
+    dist = float(np.abs(t_mm).max()) / 1000.0  # max, not the norm: squaring 1e300 overflows
     if dist > _MAX_TRANSLATION_M:
         # found by fuzzing: 1e300 mm passed as finite and overflowed in the GT voxel grid (numpy
         # RuntimeWarnings on the terminal, garbage labels); no tabletop camera is that far away
