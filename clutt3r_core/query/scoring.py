@@ -258,14 +258,19 @@ def score_instances(
         evidence = name[ranking[0]] > 0 or (cidx and share[ranking[0]].mean() > 0.25)
         confident = bool(best - second >= config.confident_margin and evidence)
     expl = []
-    top_q = np.argsort(-q)[: config.explain_classes] if q is not None else ()
+    n_ex = config.explain_classes
+    top_q = np.argsort(-q)[:n_ex] if q is not None else ()
+    if q is not None and labels and k:
+        probs = np.exp(inst.grounding.astype(np.float64))  # (I, L), once for every instance
+        part = np.argpartition(-probs, min(3, probs.shape[1] - 1), axis=1)[:, :3]
     for i in range(k):
         classes: tuple[ClassMatch, ...] = ()
         looks: tuple[ClassMatch, ...] = ()
         if q is not None and labels:
-            p = np.exp(inst.grounding[i].astype(np.float64))
+            p = probs[i]
             classes = tuple(ClassMatch(labels[c], float(q[c]), float(p[c])) for c in top_q)
-            looks = tuple(ClassMatch(labels[c], float(q[c]), float(p[c])) for c in np.argsort(-p)[:3])
+            top = part[i][np.argsort(-p[part[i]])]
+            looks = tuple(ClassMatch(labels[c], float(q[c]), float(p[c])) for c in top)
         cols = tuple(
             ColorMatch(w, float(share[i, j]), float(config.color_weight * share[i, j] / len(cidx)))
             for j, w in enumerate(query.colors)
