@@ -57,3 +57,19 @@ def test_markdown_of_an_explanation(tiny_data):
     e = explain_pair(tr, int(leaves[0]), int(leaves[-1]))
     md = as_markdown(e.text())
     assert md.startswith("**masks ") and "  \n" in md and "tau_spat" in md
+
+
+def test_tree_image_draws_one_row_per_mask_and_marks_the_selection(tiny_data):
+    from clutt3r_viewer.panels.tree import ROLE_COLOURS, ROW, THUMB, node_kind, tree_image, tree_order
+
+    d = tiny_data
+    order = tree_order(d, 0)
+    plain = tree_image(d, 0)
+    assert plain.shape == (ROW * len(order) + 4, 480, 3) and plain.dtype == np.uint8
+    for r, (i, depth) in enumerate(order):  # the frame of each thumbnail is its role's colour
+        x0, y0 = 4 + depth * 28, 2 + r * ROW
+        assert tuple(plain[y0 + THUMB // 2, x0]) == ROLE_COLOURS[node_kind(d, i)]
+    i, _ = order[-1]
+    sel = tree_image(d, 0, i)
+    y = 2 + (len(order) - 1) * ROW
+    assert tuple(sel[y, 470]) == (255, 236, 150) and tuple(plain[y, 470]) == (250, 250, 250)
