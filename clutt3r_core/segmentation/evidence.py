@@ -30,7 +30,10 @@ def check_views(scene: Scene) -> None:
         if v.depth is None:
             raise SceneError(f"{v.name or v.frame}: initial view has no depth")
         if v.masks is None:
-            raise SceneError(f"{v.name or v.frame}: initial view has no mask candidates")
+            raise SceneError(
+                f"{v.name or v.frame}: initial view has no mask candidates (generate them first: "
+                "clutt3r_core.masks.fill_masks(scene, create_mask_generator('builtin')); clutt3r segment does)"
+            )
 
 
 def background_masks(hits: sp.csr_matrix, support_voxel: np.ndarray, fraction: float) -> np.ndarray:
