@@ -11,6 +11,9 @@ import sys
 import time
 from pathlib import Path
 
+from typing import Annotated
+
+import tyro
 from tyro.conf import Positional
 
 from clutt3r_core.grasping.antipodal import AntipodalConfig
@@ -41,8 +44,8 @@ def _target_from_query(run: Path, text: str, scene: Path | None) -> tuple[int, s
 
 
 def grasp_command(
-    run: Positional[Path],
-    query: Positional[str] = "",
+    run: Annotated[Positional[Path], tyro.conf.arg(metavar="RUN")],
+    query: Annotated[Positional[str], tyro.conf.arg(metavar="QUERY")] = "",
     instance: int | None = None,
     json: bool = False,
     top: int = 10,
@@ -59,7 +62,7 @@ def grasp_command(
         instance: target instance id (0-based, as in instances.npz and the viewer).
         json: print one JSON object on the last line: {"target", "query", "grasps": [...]} best first.
         top: number of grasps to print and write.
-        base-frame: file with T_base_world (4x4: .json, .npy or text); grasps also get T_base_gripper.
+        base_frame: file with T_base_world (4x4: .json, .npy or text); grasps also get T_base_gripper.
         scene: the scene folder, when the run does not record it (for the unseen-space check).
         planner: grasp planner backend (default: the registry's default, "antipodal").
         config: settings of the antipodal planner.
