@@ -18,10 +18,11 @@ from clutt3r_viewer.panels.scene import InstancesPanel, ScenePanel
 from clutt3r_viewer.panels.tree import TreePanel
 from clutt3r_viewer.panels.updates import UpdatesPanel
 import clutt3r_viewer.panels.update_sources  # noqa: E402,F401  (registers the update chain's frames and pose replay)
+from clutt3r_viewer.panels.update_curves import UpdateCurvesPanel
 from clutt3r_viewer.panels.views import ViewsPanel
 
 __all__ = ["Panel", "Change", "PANELS", "ViewsPanel", "ScenePanel", "InstancesPanel", "TreePanel", "LeafGraphPanel",
            "ReplayPanel", "QueryPanel", "EditPanel", "GraspsPanel", "UpdatesPanel"]
 
 PANELS: list[type[Panel]] = [ViewsPanel, ScenePanel, InstancesPanel, TreePanel, LeafGraphPanel, ReplayPanel,
-                             ExplainPanel, QueryPanel, EditPanel, GraspsPanel, UpdatesPanel]
+                             ExplainPanel, QueryPanel, EditPanel, GraspsPanel, UpdatesPanel, UpdateCurvesPanel]

@@ -163,3 +163,23 @@ def export_updates_rerun(rec, data, max_points: int = 50_000) -> int:
                 rec.log(f"plots/update/loss/I{k}", rr.Scalars(float(loss)))
                 rec.log(f"plots/update/iou/I{k}", rr.Scalars(float(iou)))
     return src.num_events
+
+
+def update_curves(frame: UpdateFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, ...]]:
+    """The loss and IoU curves of one update's pose optimisations, for plotting.
+
+    Returns (x (T,) float64 iteration index, loss (S, T) total loss, iou (S, T), instance ids
+    (S,)), one row per instance that was optimised; a shorter optimisation holds its last
+    value. S = 0 when nothing was optimised.
+    """
+    rs = [] if frame.result is None else [r for r in frame.result.instances if r.pose is not None]
+    if not rs:
+        return np.zeros(0), np.zeros((0, 0)), np.zeros((0, 0)), ()
+    t = max(len(r.pose.trace) for r in rs)
+    loss = np.empty((len(rs), t))
+    iou = np.empty((len(rs), t))
+    for i, r in enumerate(rs):
+        tr = r.pose.trace
+        idx = np.minimum(np.arange(t), len(tr) - 1)
+        loss[i], iou[i] = tr.losses[idx, 0], tr.iou[idx]
+    return np.arange(t, dtype=np.float64), loss, iou, tuple(r.instance for r in rs)

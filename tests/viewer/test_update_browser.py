@@ -54,4 +54,17 @@ def test_replay_steps_the_pose_iterations(browser, update_app, artifacts):  # no
     assert np.abs(end - start).sum(-1).astype(bool).mean() > 0.002, "the displaced points did not move"
     page.keyboard.press("Home")
     _wait(lambda: sess.state.event == 0, what="replay back at iteration 0")
+
+    # the Updates tab: choosing the update draws its loss and IoU curves
+    from clutt3r_viewer.panels.update_curves import UpdateCurvesPanel
+
+    _tab(page, "Updates")
+    slider = page.get_by_role("slider").locator("visible=true").first
+    slider.focus()
+    page.keyboard.press("End")  # update 0 (the slider runs from -1 = the initial segmentation)
+    _wait(lambda: sess.state.update == 0, what="update 0 selected")
+    panel = sess.panel(UpdateCurvesPanel)
+    _wait(lambda: panel.loss is not None and panel.iou is not None, what="curves drawn")
+    time.sleep(1.0)
+    page.screenshot(path=str(artifacts / "viewer_update_curves.png"))
     page.close()

@@ -70,3 +70,15 @@ def test_update_chain_is_replayed(tiny_run_dir, tiny_seg, tmp_path):
     rec.flush()
     rec.disconnect()
     assert (tmp_path / "u.rrd").stat().st_size > 1000
+
+
+def test_update_curves_hold_the_last_value(tiny_seg):
+    from clutt3r_core.update import UpdateFrame
+    from clutt3r_viewer.panels.update_sources import update_curves
+
+    s0 = state_from_segmentation(tiny_seg)
+    res = _fake_update(s0, 8, k=1, shift=0.02, removed=None, n_iter=7)
+    x, loss, iou, ids = update_curves(UpdateFrame(frame=8, result=res))
+    assert ids == (1,) and x.shape == (7,) and loss.shape == iou.shape == (1, 7)
+    np.testing.assert_allclose(iou[0], np.linspace(0.1, 0.9, 7))
+    assert update_curves(UpdateFrame(frame=8))[3] == ()
