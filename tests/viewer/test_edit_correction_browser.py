@@ -171,4 +171,13 @@ def test_a_whole_correction_in_the_browser(browser, edit_app, artifacts, tmp_pat
     ap, _ = evaluate_instances(seg.points, inst, scores, gt)
     assert ap.ap == 100.0
     page.screenshot(path=str(artifacts / "viewer_correction_3_exported.png"))
+
+    # 8. hotkeys (viser command palette): I inverts the selection, Escape clears it
+    before = panel.sel.copy()
+    page.mouse.move(box["x"] + 5, box["y"] + box["height"] - 5)  # over the canvas, no click
+    page.keyboard.press("i")
+    _wait(lambda: not np.array_equal(panel.sel, before), what="hotkey I (invert)")
+    assert not (panel.sel & before).any()
+    page.keyboard.press("Escape")
+    _wait(lambda: not panel.sel.any(), what="hotkey Escape (clear)")
     page.close()
