@@ -1,7 +1,8 @@
 """The segmentation pipeline (Sec. III-A, III-B): scene -> 3D instances with a full trace.
 
 ``segment(scene, config)`` runs, on the scene's initial views:
-point cloud fusion -> super-voxels -> per-view instance trees -> node occupancy and
+mask candidates where the scene has none (``masks.ensure_candidates``: the builtin generator by
+default, issue 11) -> point cloud fusion -> super-voxels -> per-view instance trees -> node occupancy and
 embeddings -> leaf graph -> two-stage grouping with substitution -> super-voxel
 majority vote. A run folder is written and read by ``clutt3r_core.runs`` (``save_run`` /
 ``load_run``, re-exported here); the config and its presets live in ``clutt3r_core.config``
@@ -18,6 +19,7 @@ from clutt3r_core.config import PRESETS, SegmentConfig, _paper_literal  # noqa: 
 from clutt3r_core.diagnostics import RunWarning, check_usable_depth, view_warnings
 from clutt3r_core.embeddings import MaskEmbedder, create_embedder
 from clutt3r_core.errors import SceneError
+from clutt3r_core.masks import MaskGenerator, MaskProvenance, ensure_candidates
 from clutt3r_core.occupancy import mask_occupancy, mask_voxel_hits
 from clutt3r_core.pointcloud import fuse_views
 from clutt3r_core.runs import load_run, save_run  # noqa: F401  (re-exported)
@@ -30,7 +32,7 @@ from clutt3r_core.segmentation.grouping import (
     semantic_similarity,
     spatial_similarity,
 )
-from clutt3r_core.segmentation.trace import StageClock, Trace
+from clutt3r_core.segmentation.trace import StageClock, StageTiming, Trace
 from clutt3r_core.segmentation.trees import InstanceTree, build_instance_tree
 from clutt3r_core.segmentation.vote import supervoxel_vote
 from clutt3r_core.supervoxels import build_supervoxels
@@ -63,6 +65,8 @@ class Segmentation:
         scene_name: name of the scene.
         warnings: what degraded the input (``diagnostics.RunWarning``): the loader's and the
             view checks'; recorded in run.json.
+        masks: where the mask candidates came from (``masks.MaskProvenance``: the scene's own,
+            or a generator's, which ``save_run`` writes to RUN/instance_masks/); run.json ``masks``.
     """
 
     points: np.ndarray
@@ -76,9 +80,12 @@ class Segmentation:
     trace: Trace
     scene_name: str = ""
     warnings: tuple[RunWarning, ...] = ()
+    masks: MaskProvenance = MaskProvenance()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "warnings", tuple(self.warnings))
+        if not isinstance(self.masks, MaskProvenance):
+            raise SceneError("Segmentation.masks must be a masks.MaskProvenance")
         if not all(isinstance(w, RunWarning) for w in self.warnings):
             raise SceneError("Segmentation.warnings must hold diagnostics.RunWarning values")
         n = self.points.shape[0]
@@ -102,10 +109,21 @@ def segment(
     config: SegmentConfig = SegmentConfig(),
     embedder: MaskEmbedder | None = None,
     progress: bool = False,
+    masks: str | MaskGenerator = "auto",
 ) -> Segmentation:
-    """Segment the initial views of ``scene`` into 3D instances (Sec. III-A, III-B)."""
+    """Segment the initial views of ``scene`` into 3D instances (Sec. III-A, III-B).
+
+    ``masks``: where the mask candidates come from (``masks.ensure_candidates``): ``"auto"``
+    keeps the scene's own and gives views without any the builtin generator's; ``"scene"``
+    refuses a view without candidates (``SceneError``); a generator name or object replaces
+    every initial view's. Recorded in ``Segmentation.masks`` (and by ``save_run``).
+    """
+    check_views(scene, masks=False)  # a view without depth: that error, not the generator's
+    scene, provenance = ensure_candidates(scene, masks, progress=progress)
     check_views(scene)
     timer = StageClock()
+    if provenance.generated:  # generation is part of the run's cost; absent when nothing was made
+        timer.items.append(StageTiming("masks", provenance.seconds))
     embedder = embedder or create_embedder(config.embedder)
     # canonical view order (by frame) so that the result does not depend on input order
     views = sorted(scene.initial_views, key=lambda v: v.frame)
@@ -207,6 +225,7 @@ def segment(
         trace=trace,
         scene_name=scene.name,
         warnings=warnings,
+        masks=provenance,
     )
 
 

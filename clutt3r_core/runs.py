@@ -6,7 +6,10 @@
     cloud.npz            normals, voxel counts, super-voxel labels and support flags
     trace/               trace.npz + trace.json (every intermediate, see segmentation/trace.py)
     run.json             scene name, the scene folder it was made from, the tool version, and
-                         the run's warnings ([{code, frame, view, message}], diagnostics.RunWarning)
+                         the run's warnings ([{code, frame, view, message}], diagnostics.RunWarning),
+                         and where its mask candidates came from (masks: {generator, folder, generated})
+    instance_masks/      generated candidates (masks.MaskProvenance), mask_{frame:06d}_{id:02d}.png;
+                         absent when the scene's own were used
     overview.png         (CLI only) instances splatted into up to four views
 
 The scene folder is recorded relative to the run folder when a relative path exists
@@ -26,6 +29,7 @@ import numpy as np
 from clutt3r_core.diagnostics import RunWarning
 from clutt3r_core.errors import SceneError, SceneFileError
 from clutt3r_core.io.images import NPZ_READ_ERRORS, atomic_write_bytes, atomic_write_npz
+from clutt3r_core.masks import MaskProvenance
 
 __all__ = [
     "RUN_FILES",
@@ -69,12 +73,15 @@ class RunInfo:
         created_by: the clutt3r version that wrote the run ("" for runs older than this field).
         warnings: what degraded the run's input (``diagnostics.RunWarning``, e.g. a frame demoted to
             post-interaction, a view without usable depth); empty for runs older than this field.
+        masks: where the candidates came from (``masks.MaskProvenance`` without the arrays); the
+            scene's own for runs older than this field.
     """
 
     scene_name: str = ""
     scene: Path | None = None
     created_by: str = ""
     warnings: tuple[RunWarning, ...] = ()
+    masks: MaskProvenance = MaskProvenance()
 
 
 def _version() -> str:
@@ -106,8 +113,9 @@ def save_run(seg, out: str | Path, scene_root: str | Path | None = None) -> Path
     atomic_write_bytes(out / "instances.ply", _ply_bytes(seg.points, seg.colors, seg.instance))
     atomic_write_bytes(out / "instance_tree.json", json.dumps(instance_tree_json(seg), indent=1).encode())
     save_trace(seg.trace, out / "trace")
+    _write_run_masks(seg.masks, out / "instance_masks")
     info = {"scene_name": seg.scene_name, "scene": None, "created_by": _version(),
-            "warnings": [w.to_json() for w in seg.warnings]}
+            "warnings": [w.to_json() for w in seg.warnings], "masks": seg.masks.to_json()}
     if scene_root is not None:
         scene_abs = Path(scene_root).resolve()
         try:
@@ -116,6 +124,20 @@ def save_run(seg, out: str | Path, scene_root: str | Path | None = None) -> Path
             info["scene"] = str(scene_abs)
     atomic_write_bytes(out / _RUN_JSON, json.dumps(info, indent=1).encode())
     return out
+
+
+def _write_run_masks(prov: MaskProvenance, folder: Path) -> None:
+    """Generated candidates into ``folder``; a previous run's mask PNGs there are removed first,
+    since the viewer reads the folder whole (``masks.with_run_masks``) and must not mix runs."""
+    from clutt3r_core.masks.formats import write_png_masks
+
+    if folder.is_dir():
+        for old in folder.glob("mask_*.png"):
+            old.unlink()
+        if not prov.candidates and not any(folder.iterdir()):
+            folder.rmdir()
+    for frame, cands in zip(prov.frames, prov.candidates):
+        write_png_masks(folder, frame, cands)
 
 
 def load_run(folder: str | Path):
@@ -141,7 +163,7 @@ def load_run(folder: str | Path):
         return Segmentation(
             points=a["points"], colors=a["colors"], normals=c["normals"], counts=c["counts"],
             instance=a["instance"], scores=a["scores"], sv_labels=c["sv_labels"], sv_support=c["sv_support"],
-            trace=trace, scene_name=info.scene_name, warnings=info.warnings,
+            trace=trace, scene_name=info.scene_name, warnings=info.warnings, masks=info.masks,
         )
     except KeyError as e:
         raise SceneFileError(folder, f"run arrays lack {e}") from None
@@ -179,7 +201,12 @@ def read_run_info(folder: str | Path) -> RunInfo:
         warnings = tuple(RunWarning.from_json(w) for w in raw)
     except SceneError as e:
         raise SceneFileError(path, f"bad entry in 'warnings': {e}") from None
-    return RunInfo(scene_name=name, scene=None if scene is None else Path(scene), created_by=by, warnings=warnings)
+    try:
+        masks = MaskProvenance.from_json(d["masks"]) if "masks" in d else MaskProvenance()
+    except SceneError as e:
+        raise SceneFileError(path, str(e)) from None
+    return RunInfo(scene_name=name, scene=None if scene is None else Path(scene), created_by=by,
+                   warnings=warnings, masks=masks)
 
 
 def run_scene_folder(run_dir: str | Path) -> Path | None:

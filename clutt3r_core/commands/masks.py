@@ -1,5 +1,6 @@
 """``clutt3r masks SCENE --out DIR``: mask candidates alone; and the ``--masks`` options of
-``clutt3r segment`` (``MaskOptions``, ``prepare_masks``, ``record_run_masks``).
+``clutt3r segment`` (``MaskOptions``, ``mask_choice``; the rule itself is
+``clutt3r_core.masks.ensure_candidates``, which ``pipeline.segment`` applies).
 
 Candidates are written as ``mask_{frame:06d}_{id:02d}.png`` (the sample layout's
 ``instance_masks/``), so they can be inspected, corrected, and reused with
@@ -8,7 +9,6 @@ Candidates are written as ``mask_{frame:06d}_{id:02d}.png`` (the sample layout's
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,7 +17,7 @@ from typing import Annotated, Literal
 import tyro
 from tyro.conf import Positional
 
-__all__ = ["MaskOptions", "MaskChoice", "masks_command", "prepare_masks", "record_run_masks", "make_generator"]
+__all__ = ["MaskOptions", "MaskChoice", "masks_command", "mask_choice", "make_generator"]
 
 MaskChoice = Literal["auto", "builtin", "import", "sam-onnx"]
 
@@ -50,43 +50,10 @@ def make_generator(opts: MaskOptions):
     return create_mask_generator(name)
 
 
-def prepare_masks(scene, opts: MaskOptions, console=None):
-    """(scene with candidates on every initial view, generator name or None if the scene's own).
-
-    ``auto`` keeps a scene's own candidates and fills views without any with the builtin
-    generator; any other choice replaces every initial view's candidates.
-    """
-    from clutt3r_core.masks import fill_masks, scene_has_masks
-
-    if opts.masks == "auto" and scene_has_masks(scene):
-        return scene, None
-    gen = make_generator(opts)
-    if console is not None:
-        why = "the scene has no mask candidates" if opts.masks == "auto" else f"--masks {opts.masks}"
-        console.print(f"mask candidates: generator [bold]{gen.name}[/] ({why}), {len(scene.initial)} views")
-    t = time.perf_counter()
-    out = fill_masks(scene, gen, only_missing=opts.masks == "auto", progress=console is not None)
-    if console is not None:
-        n = sum(len(v.masks) for v in out.initial_views)
-        console.print(f"mask candidates: {n} in {time.perf_counter() - t:.1f} s")
-    return out, gen.name
-
-
-def record_run_masks(run_dir: str | Path, scene, generator: str | None) -> None:
-    """Write generated candidates to RUN/instance_masks/ and name their generator in run.json
-    (key ``masks``: {"generator", "folder"}); ``generator=None`` records "scene"."""
-    from clutt3r_core.io.images import atomic_write_bytes
-    from clutt3r_core.masks import write_masks
-
-    run_dir = Path(run_dir)
-    rec = {"generator": generator or "scene", "folder": None}
-    if generator is not None:
-        write_masks(scene, run_dir / "instance_masks")
-        rec["folder"] = "instance_masks"
-    path = run_dir / "run.json"
-    d = json.loads(path.read_text()) if path.is_file() else {}
-    d["masks"] = rec
-    atomic_write_bytes(path, json.dumps(d).encode())
+def mask_choice(opts: MaskOptions):
+    """``pipeline.segment``'s ``masks`` argument for ``opts``: ``"auto"`` (the scene's own, the
+    builtin generator where it has none) or the generator object (which replaces them)."""
+    return "auto" if opts.masks == "auto" else make_generator(opts)
 
 
 def masks_command(

@@ -36,7 +36,7 @@ def segment_command(
     from rich.console import Console
     from rich.markup import escape
 
-    from clutt3r_core.commands.masks import prepare_masks, record_run_masks
+    from clutt3r_core.commands.masks import mask_choice
     from clutt3r_core.io import load_scene
     from clutt3r_core.io.images import write_png
     from clutt3r_core.pipeline import segment
@@ -48,11 +48,17 @@ def segment_command(
         config = PRESETS[preset]
     with console.status(f"loading {scene}"):
         sc = load_scene(scene)
-    sc, mask_generator = prepare_masks(sc, mask_options, console)
-    seg = segment(sc, config, progress=True)
+    masks = mask_choice(mask_options)
+    if masks != "auto" or not all(v.masks is not None for v in sc.initial_views):
+        why = f"--masks {mask_options.masks}" if masks != "auto" else "the scene has no mask candidates"
+        console.print(f"mask candidates: generator [bold]{getattr(masks, 'name', 'builtin')}[/] ({why})")
+    seg = segment(sc, config, progress=True, masks=masks)
+    if seg.masks.generated:
+        n = sum(len(c) for c in seg.masks.candidates)
+        console.print(f"mask candidates: {n} on {len(seg.masks.frames)} views in {seg.masks.seconds:.1f} s")
     # the folder load_scene read (a release sample's data/ inside SCENE), so the viewer finds the images
+    # (save_run also writes generated candidates to OUT/instance_masks/ and their generator to run.json)
     save_run(seg, out, scene_root=sc.root if sc.root is not None else scene)
-    record_run_masks(out, sc, mask_generator)
     write_png(Path(out) / "overview.png", overview_sheet(seg.points, seg.instance, sc))
     for w in seg.warnings:  # also in OUT/run.json; soft_wrap: one line each, however narrow the terminal
         console.print(f"[yellow]warning:[/] {escape(w.message)}", soft_wrap=True, highlight=False)

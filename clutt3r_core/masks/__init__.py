@@ -13,19 +13,30 @@ Generators (registered in ``clutt3r_core/registry.py``):
 * ``sam-onnx`` (``masks/sam_onnx.py``): SAM-family encoder/decoder exported to ONNX, from
   local paths.
 
-``fill_masks(scene, generator)`` gives every initial view candidates from a generator and
-``write_masks(scene, folder)`` writes them in the sample layout's naming.
+``ensure_candidates(scene, masks)`` is the one rule of where a run's candidates come from
+(``pipeline.segment``, ``clutt3r segment`` and ``clutt3r bench`` all call it): ``"auto"`` keeps
+the scene's own and fills views without any with the builtin generator, ``"scene"`` generates
+nothing, a generator (name or object) replaces every initial view's. It returns the scene and a
+``MaskProvenance`` that the run records. ``fill_masks(scene, generator)`` gives every initial view
+candidates from a generator and ``write_masks(scene, folder)`` writes them in the sample layout's
+naming.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol, runtime_checkable
 
+from clutt3r_core.errors import SceneError
 from clutt3r_core.scene import MaskCandidates, Scene, View
 
-__all__ = ["MaskGenerator", "create_mask_generator", "fill_masks", "write_masks", "scene_has_masks", "with_run_masks"]
+__all__ = [
+    "MaskGenerator", "MaskProvenance", "create_mask_generator", "ensure_candidates", "fill_masks",
+    "write_masks", "scene_has_masks", "with_run_masks",
+]
 
 
 @runtime_checkable
@@ -45,6 +56,93 @@ def create_mask_generator(name: str = "builtin", **kwargs) -> MaskGenerator:
     from clutt3r_core.registry import create_backend
 
     return create_backend("mask_generator", name, **kwargs)
+
+
+@dataclass(frozen=True)
+class MaskProvenance:
+    """Where a run's mask candidates came from (``ensure_candidates``; recorded in run.json).
+
+    Attributes:
+        generator: the generator that made candidates (a registry name, or its ``name``
+            attribute), or ``"scene"`` when every initial view kept the scene's own.
+        generated: frames (int) whose candidates the generator made; empty for ``"scene"``.
+        frames: (V,) frames of every initial view, in the scene's order, when anything was
+            generated (what ``save_run`` writes to ``RUN/instance_masks/``); empty otherwise
+            and for a run read back from disk.
+        candidates: the candidates of those views, aligned with ``frames`` (the very arrays of
+            the scene, no copy).
+        seconds: wall time of the generation (0 when nothing was generated).
+
+    Equality compares ``generator`` and ``generated`` only (what run.json keeps), so a run read
+    back equals the one written.
+    """
+
+    generator: str = "scene"
+    generated: tuple[int, ...] = ()
+    frames: tuple[int, ...] = field(default=(), compare=False)
+    candidates: tuple[MaskCandidates, ...] = field(default=(), compare=False)
+    seconds: float = field(default=0.0, compare=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "generated", tuple(int(f) for f in self.generated))
+        object.__setattr__(self, "frames", tuple(int(f) for f in self.frames))
+        object.__setattr__(self, "candidates", tuple(self.candidates))
+        if not isinstance(self.generator, str) or not self.generator:
+            raise SceneError("MaskProvenance.generator must be a non-empty string")
+        if len(self.frames) != len(self.candidates):
+            raise SceneError(f"MaskProvenance: {len(self.frames)} frames but {len(self.candidates)} candidate sets")
+        if self.generator == "scene" and self.generated:
+            raise SceneError("MaskProvenance: generator 'scene' generated nothing")
+
+    def to_json(self) -> dict:
+        """run.json's ``masks`` entry; ``folder`` is where ``save_run`` writes the candidates."""
+        return {"generator": self.generator, "folder": "instance_masks" if self.candidates else None,
+                "generated": list(self.generated)}
+
+    @classmethod
+    def from_json(cls, d) -> MaskProvenance:
+        if not isinstance(d, dict) or not isinstance(d.get("generator"), str) or not d["generator"]:
+            raise SceneError("'masks' must be an object with a non-empty 'generator' string")
+        gen = d.get("generated", [])
+        if not isinstance(gen, list) or not all(isinstance(f, int) and not isinstance(f, bool) for f in gen):
+            raise SceneError("'masks.generated' must be a list of frame numbers")
+        return cls(generator=d["generator"], generated=tuple(gen))
+
+
+def ensure_candidates(
+    scene: Scene, masks: str | MaskGenerator = "auto", *, progress: bool = False
+) -> tuple[Scene, MaskProvenance]:
+    """The scene with candidates on its initial views, and where they came from.
+
+    ``masks``:
+
+    * ``"auto"`` (default; issue 11: the builtin generator is the default when a scene has no
+      candidates): views that have candidates keep them, the others get the builtin's;
+    * ``"scene"``: nothing is generated (``pipeline.segment`` then refuses a view without);
+    * a registry name (``"builtin"``, ...) or a ``MaskGenerator``: every initial view's
+      candidates are replaced by the generator's (a name is created without arguments, so
+      ``import`` / ``sam-onnx`` need an object: ``create_mask_generator("import", source=...)``).
+
+    Post-interaction views are left as they are.
+    """
+    if masks == "scene" or (masks == "auto" and scene_has_masks(scene)):
+        return scene, MaskProvenance()
+    if isinstance(masks, str):
+        gen = create_mask_generator("builtin" if masks == "auto" else masks)
+    elif isinstance(masks, MaskGenerator):
+        gen = masks
+    else:
+        raise SceneError(f"masks must be 'auto', 'scene', a mask generator name or object, not {masks!r}")
+    only_missing = masks == "auto"
+    t0 = time.perf_counter()
+    done = [v.frame for v in scene.initial_views if not (only_missing and v.masks is not None)]
+    out = fill_masks(scene, gen, only_missing=only_missing, progress=progress)
+    views = out.initial_views
+    return out, MaskProvenance(
+        generator=str(getattr(gen, "name", type(gen).__name__)), generated=tuple(done),
+        frames=tuple(v.frame for v in views), candidates=tuple(v.masks for v in views),
+        seconds=time.perf_counter() - t0,
+    )
 
 
 def scene_has_masks(scene: Scene) -> bool:

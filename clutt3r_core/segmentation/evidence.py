@@ -20,8 +20,9 @@ from clutt3r_core.scene import Scene
 __all__ = ["check_views", "background_masks"]
 
 
-def check_views(scene: Scene) -> None:
-    """Raise ``SceneError`` unless every initial view of ``scene`` has depth and mask candidates."""
+def check_views(scene: Scene, masks: bool = True) -> None:
+    """Raise ``SceneError`` unless every initial view of ``scene`` has depth and (unless
+    ``masks=False``: checked before candidates are generated) mask candidates."""
     if not scene.initial:
         demoted = [w.frame for w in scene.warnings if w.code == "frame-demoted"]
         why = f" (frames {demoted} have no depth file, so they were taken as post-interaction)" if demoted else ""
@@ -29,10 +30,11 @@ def check_views(scene: Scene) -> None:
     for v in scene.initial_views:
         if v.depth is None:
             raise SceneError(f"{v.name or v.frame}: initial view has no depth")
-        if v.masks is None:
+        if masks and v.masks is None:
             raise SceneError(
-                f"{v.name or v.frame}: initial view has no mask candidates (generate them first: "
-                "clutt3r_core.masks.fill_masks(scene, create_mask_generator('builtin')); clutt3r segment does)"
+                f"{v.name or v.frame}: initial view has no mask candidates (segment(scene) with the "
+                "default masks='auto' generates them with the builtin generator; or "
+                "clutt3r_core.masks.ensure_candidates(scene, 'builtin'))"
             )
 
 

@@ -143,7 +143,7 @@ def test_missing_masks_or_depth_is_a_clear_error():
     v = scene.views[scene.initial[0]]
     no_masks = Scene(tuple(replace(x, masks=None) if x is v else x for x in scene.views), scene.initial)
     with pytest.raises(SceneError, match="no mask candidates"):
-        segment(no_masks)
+        segment(no_masks, masks="scene")  # the default, masks="auto", generates them (tests/core/masks/test_ensure.py)
     no_depth = Scene(tuple(replace(x, depth=None) if x is v else x for x in scene.views), scene.initial)
     with pytest.raises(SceneError, match="no depth"):
         segment(no_depth)

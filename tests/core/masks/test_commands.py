@@ -48,7 +48,7 @@ def test_segment_fills_missing_masks_and_records_generator(bare_scene, tmp_path)
     run = tmp_path / "run"
     main(["segment", str(bare_scene), "--out", str(run)])
     info = json.loads((run / "run.json").read_text())
-    assert info["masks"] == {"generator": "builtin", "folder": "instance_masks"}
+    assert info["masks"] == {"generator": "builtin", "folder": "instance_masks", "generated": [0, 1, 2]}
     names = sorted(p.name for p in (run / "instance_masks").iterdir())
     assert names and all(n.startswith("mask_") and n.endswith(".png") for n in names)
     from clutt3r_core.runs import load_run
@@ -64,7 +64,7 @@ def test_segment_auto_keeps_scene_masks(tmp_path):
     write_sample_layout(tiny_scene(), root)
     run = tmp_path / "run"
     main(["segment", str(root), "--out", str(run)])
-    assert json.loads((run / "run.json").read_text())["masks"] == {"generator": "scene", "folder": None}
+    assert json.loads((run / "run.json").read_text())["masks"] == {"generator": "scene", "folder": None, "generated": []}
     assert not (run / "instance_masks").exists()
 
 
