@@ -66,11 +66,12 @@ def option_id(text: str | None) -> int:
 
 
 def status_text(ann: Annotations) -> str:
-    state = "saved" if ann.saved else "logged, snapshot pending"
+    # every entry is fsynced when it is made; the snapshot is only a checkpoint for reopening
+    state = "checkpoint up to date" if ann.saved else f"checkpoint at entry {ann.saved_ops}"
     ro = " **(read-only: another process is editing this run)**" if ann.readonly else ""
     n = ann.num_edits
-    return (f"**{n} edit{'' if n == 1 else 's'}**, {state} — {ann.num_ops} log entries in "
-            f"`corrections/ops.jsonl`{ro}")
+    return (f"**{n} edit{'' if n == 1 else 's'}** — {ann.num_ops} log entries in "
+            f"`corrections/ops.jsonl` (each saved at once), {state}{ro}")
 
 
 def progress_text(ann: Annotations, now: float | None = None) -> str:
@@ -83,6 +84,8 @@ def progress_text(ann: Annotations, now: float | None = None) -> str:
     named = sum(1 for k in alive if lab.categories[k])
     unl = int((lab.instance < 0).sum())
     t = ann.last_write
+    if t <= 0 and ann.log_path.is_file():  # edits of an earlier session (or of another process)
+        t = ann.log_path.stat().st_mtime
     if t <= 0:
         last = "no edit yet"
     else:

@@ -32,9 +32,9 @@ def test_options_status_and_node_instance_follow_the_corrections(tiny_data, tiny
         assert "0 edits" in status_text(a)
         a.apply_op(Merge(into=0, other=1))
         assert node_instance_now(d, a.current, i) == 0
-        assert "1 edit**" in status_text(a) and "snapshot pending" in status_text(a)
+        assert "1 edit**" in status_text(a) and "checkpoint at entry 0" in status_text(a)
         a.save()
-        assert "saved" in status_text(a)
+        assert "checkpoint up to date" in status_text(a)
         # a second viewer on the same run while this one holds the log: read-only, not an error
         b = open_annotations(run, d.seg)
         assert b.readonly and b.current.equals(a.current)
