@@ -189,7 +189,7 @@ class MaskCandidates:
 
     def areas(self) -> np.ndarray:
         """(M,) int64 pixel count of every mask."""
-        return self.masks.reshape(len(self), -1).sum(axis=1)
+        return np.count_nonzero(self.masks, axis=(1, 2)).astype(np.int64)  # reshape(0, -1) fails for M = 0
 
     def index_of(self, mask_id: int) -> int:
         hits = np.flatnonzero(self.ids == mask_id)

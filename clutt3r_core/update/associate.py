@@ -200,7 +200,7 @@ def associate(
     lut = np.full(int(ids.max()) + 2 if K else 1, K, np.int64)
     lut[ids] = np.arange(K)
     lab_idx = np.where(flat_lab >= 0, lut[np.maximum(flat_lab, 0)], K)
-    areas = np.count_nonzero(masks.masks, axis=(1, 2)).astype(np.int64)  # (MaskCandidates.areas fails for M = 0)
+    areas = masks.areas()
     s_spat = np.zeros((M, K), np.float32)
     for m in range(M):
         inter = np.bincount(lab_idx[masks.masks[m].reshape(-1)], minlength=K + 1)[:K]
