@@ -20,6 +20,7 @@ def bench_command(
     view_sweep: bool = True,
     noise_sweep: bool = True,
     sweep_per_difficulty: int = 2,
+    masks: Literal["scene", "builtin"] = "scene",
     width: int = 0,
     height: int = 0,
     seed0: int = 0,
@@ -45,6 +46,9 @@ def bench_command(
         view_sweep: also run ours and the baselines with 4 and 6 of the 8 views (Table IV).
         noise_sweep: also run ours and the baselines on clean and harsh mask candidates.
         sweep_per_difficulty: scenes per difficulty used by the sweeps (the first ones).
+        masks: mask candidates of every job: scene = the scene's own (generated scenes: the
+            mask-noise model's); builtin = the builtin RGB-D generator's, made per job (no noise
+            sweep then: the generator replaces the noise model's candidates). Part of the job key.
         width: image width of generated scenes (0 = suite default).
         height: image height of generated scenes (0 = suite default).
         seed0: first seed of the generated scenes.
@@ -73,7 +77,9 @@ def bench_command(
     n = per_difficulty or defaults[0]
     w, h = width or defaults[1], height or defaults[2]
     t0 = time.perf_counter()
-    main = Setting(8, "grounded-sam-like")
+    main = Setting(8, "grounded-sam-like", masks)
+    if masks != "scene":
+        noise_sweep = False  # every noise variant would get the same generated candidates
     if scenes_dir is not None:
         scenes = folder_suite(scenes_dir)
         sweep_scenes = scenes[: max(1, sweep_per_difficulty)]
@@ -84,7 +90,7 @@ def bench_command(
     jobs = plan_jobs(scenes, methods, [main], cache)
     sweep_methods = [m for m in ("ours", "naive", "maskclustering") if m in methods]
     if view_sweep:
-        jobs += plan_jobs(sweep_scenes, sweep_methods, [Setting(4, main.mask_noise), Setting(6, main.mask_noise)], cache)
+        jobs += plan_jobs(sweep_scenes, sweep_methods, [Setting(4, main.mask_noise, masks), Setting(6, main.mask_noise, masks)], cache)
     if noise_sweep:
         jobs += plan_jobs(sweep_scenes, sweep_methods, [Setting(8, "clean"), Setting(8, "harsh")], cache)
     executor: Executor = SerialExecutor() if workers <= 1 else ProcessExecutor(workers)

@@ -22,6 +22,7 @@ __all__ = [
     "METHODS",
     "DIFFICULTIES",
     "MASK_NOISES",
+    "MASK_SOURCES",
     "Method",
     "SceneSpec",
     "Setting",
@@ -36,6 +37,11 @@ Method = Literal["ours", "paper", "no-spatial", "no-substitution", "naive", "mas
 METHODS: tuple[str, ...] = ("ours", "paper", "no-spatial", "no-substitution", "naive", "maskclustering")
 DIFFICULTIES: tuple[str, ...] = ("easy", "intermediate", "hard")
 MASK_NOISES: tuple[str, ...] = ("clean", "grounded-sam-like", "harsh")
+MaskSource = Literal["scene", "builtin"]
+MASK_SOURCES: tuple[str, ...] = ("scene", "builtin")
+"""Where a job's mask candidates come from: the scene's own (generated scenes: the mask-noise
+model's; folders: their instance_masks/) or the builtin generator (``masks.ensure_candidates``),
+which replaces them on every view used."""
 
 
 def _sha(obj) -> str:
@@ -96,14 +102,29 @@ class SceneSpec:
 
 @dataclass(frozen=True)
 class Setting:
-    """Views used (a subset of the scene's initial views) and mask noise of generated scenes."""
+    """Views used (a subset of the scene's initial views), mask noise of generated scenes, and
+    the mask candidates' source (``MASK_SOURCES``; with ``builtin`` the noise model's candidates
+    are replaced, so ``mask_noise`` only picks the cached scene variant)."""
 
     views: int = 8
     mask_noise: str = "grounded-sam-like"
+    masks: str = "scene"
+
+    def __post_init__(self) -> None:
+        if self.masks not in MASK_SOURCES:
+            raise SceneError(f"unknown mask source '{self.masks}'; choose from {', '.join(MASK_SOURCES)}")
 
     @property
     def label(self) -> str:
-        return f"{self.views}v/{self.mask_noise}"
+        return f"{self.views}v/{self.mask_noise}" + ("" if self.masks == "scene" else f"/{self.masks}")
+
+    def key_data(self) -> dict:
+        """What identifies the setting in a job key; ``masks="scene"`` is left out so keys of
+        results cached before the field existed stay valid."""
+        d = asdict(self)
+        if d["masks"] == "scene":
+            del d["masks"]
+        return d
 
 
 @dataclass(frozen=True)
@@ -125,7 +146,7 @@ class Job:
 
 def job_key(scene: SceneSpec, method: str, setting: Setting, version: str | None = None) -> str:
     """Content hash of a job: scene identity, method config, setting and code version."""
-    return _sha([scene.identity, method, _method_config(method), asdict(setting), version or code_version()])
+    return _sha([scene.identity, method, _method_config(method), setting.key_data(), version or code_version()])
 
 
 @dataclass(frozen=True)
@@ -159,6 +180,7 @@ class JobResult:
     match_tp: tuple[tuple[bool, ...], ...] = ()
     match_thresholds: tuple[float, ...] = ()
     code_version: str = ""
+    masks: str = "scene"
     cached: bool = field(default=False, compare=False)
 
     @property

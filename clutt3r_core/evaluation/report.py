@@ -250,7 +250,7 @@ def write_report(
     md += [
         f"Scenes: {len(main_scene_names)} ("
         + ", ".join(f"{len(ndiff[d])} {d}" for d in list(_DIFF) + sorted(set(ndiff) - set(_DIFF)) if ndiff[d])
-        + f"); main setting {main.views} views, `{main.mask_noise}` mask candidates. "
+        + f"); main setting {main.views} views, `{main.mask_noise if main.masks == 'scene' else main.masks}` mask candidates. "
         f"Jobs: {len(results)} ({sum(r.cached for r in results)} from cache). "
         f"Wall time of this run: {_f(elapsed / 60, 1)} min with {workers} worker(s) on "
         f"{os.cpu_count()} CPU(s) ({platform.processor() or platform.machine()}). Code version of the results: "
@@ -445,7 +445,7 @@ def write_report(
     atomic_write_bytes(report, "\n".join(md).encode())
     payload = {"schema_version": 1, "code_version": code_version(), "command": command,
                "elapsed_seconds": None if math.isnan(elapsed) else elapsed, "workers": workers,
-               "main_setting": {"views": main.views, "mask_noise": main.mask_noise},
+               "main_setting": {"views": main.views, "mask_noise": main.mask_noise, "masks": main.masks},
                "results": [r.to_json() for r in results]}
     atomic_write_bytes(out / "results.json", json.dumps(payload, indent=1).encode())
     return report

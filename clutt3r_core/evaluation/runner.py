@@ -10,7 +10,8 @@ A benchmark is a list of **jobs** ``(scene, method, setting)``:
   the baselines ``naive`` and ``maskclustering`` (a re-implementation from the paper's
   description, see ``baselines/maskclustering.py``);
 * settings: number of views (a subset of the scene's initial views, evenly spread over
-  the camera arc) and the mask-noise model of generated scenes.
+  the camera arc), the mask-noise model of generated scenes, and where the mask candidates
+  come from (the scene's own, or the builtin generator: ``Setting.masks``).
 
 Work is mapped over an ``Executor`` (``ProcessExecutor``: local processes, 2 workers by
 default; ``SerialExecutor`` for tests). Two caches make a run resumable:
@@ -262,6 +263,13 @@ def run_job(job: Job) -> JobResult:
     scene = subset_views(prep.scene, job.setting.views)
     t0 = time.perf_counter()
     with MemoryProbe() as mem:
+        mask_stage: tuple[tuple[str, float], ...] = ()
+        if job.setting.masks != "scene":
+            from clutt3r_core.masks import ensure_candidates
+
+            # replaced on the views used only; the generator's time is the job's first stage
+            scene, prov = ensure_candidates(scene, job.setting.masks)
+            mask_stage = (("masks", prov.seconds),)
         pred = _run_method(job.method, scene)
     wall = time.perf_counter() - t0
     ap, m = evaluate_instances(pred.points, pred.instance, pred.scores, scene.ground_truth)
@@ -269,10 +277,11 @@ def run_job(job: Job) -> JobResult:
         key=job.key, scene=job.scene.name, difficulty=job.scene.difficulty, mean_occlusion=prep.mean_occlusion,
         method=job.method, views=len(scene.initial), mask_noise=job.setting.mask_noise,
         ap25=ap.ap25, ap50=ap.ap50, ap=ap.ap, per_threshold=ap.per_threshold, num_gt=ap.num_gt,
-        num_pred=ap.num_pred, stages=stage_times(pred.timings).stages, wall_seconds=wall,
+        num_pred=ap.num_pred, stages=mask_stage + stage_times(pred.timings).stages, wall_seconds=wall,
         peak_traced_mb=mem.peak_traced_mb, maxrss_mb=mem.maxrss_mb,
         match_scores=tuple(float(x) for x in m.scores), match_tp=tuple(tuple(bool(x) for x in r) for r in m.tp),
         match_thresholds=tuple(float(t) for t in m.thresholds), code_version=code_version(),
+        masks=job.setting.masks,
     )
     rf.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(rf, json.dumps(res.to_json()).encode())
