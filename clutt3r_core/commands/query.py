@@ -14,7 +14,9 @@ from __future__ import annotations
 import json as _json
 import time
 from pathlib import Path
+from typing import Annotated
 
+import tyro
 from tyro.conf import Positional
 
 __all__ = ["query_command", "write_target"]
@@ -41,8 +43,8 @@ def write_target(run: Path, seg, res) -> Path | None:
 
 
 def query_command(
-    run: Positional[Path],
-    text: Positional[str],
+    run: Annotated[Positional[Path], tyro.conf.arg(metavar="RUN")],
+    text: Annotated[Positional[str], tyro.conf.arg(metavar="TEXT")],
     json: bool = False,
     top: int = 5,
     backend: str | None = None,
@@ -61,23 +63,18 @@ def query_command(
     from rich.console import Console
     from rich.markup import escape
 
-    from clutt3r_core.errors import Clutt3rError, MissingDependencyError
+    from clutt3r_core.query import RunQuery, parse_query
 
     t0 = time.perf_counter()
     err = Console(stderr=True)
     if top < 1:
         raise SystemExit(f"clutt3r query: --top must be >= 1, got {top}")
-    try:
-        from clutt3r_core.query import RunQuery, parse_query
-
-        parse_query(text)  # an empty query fails before any model loads
-        rq = RunQuery.open(run, backend=backend, scene=scene, progress=True)
-        res = rq.query(text)
-        write_target(Path(run), rq.seg, res)
-    except MissingDependencyError as e:
-        raise SystemExit(f"clutt3r query: {e}") from None
-    except Clutt3rError as e:
-        raise SystemExit(f"clutt3r query: {e}") from None
+    # Typed errors (a damaged run, a missing backend) are not caught here: the CLI prints them as
+    # one line with status 2, and --debug shows the traceback (issue 14).
+    parse_query(text)  # an empty query fails before any model loads
+    rq = RunQuery.open(run, backend=backend, scene=scene, progress=True)
+    res = rq.query(text)
+    write_target(Path(run), rq.seg, res)
     total = time.perf_counter() - t0
     if json:
         out = res.to_json()

@@ -150,3 +150,14 @@ def test_stale_colours_and_labels_refresh_without_the_network(run_copy):
     assert g.calls == 0
     assert rq2.evidence.color_version == COLOR_VERSION and rq2.evidence.labels == g.labels
     np.testing.assert_allclose(rq2.evidence.colors, rq.evidence.colors, atol=1e-6)
+
+
+def test_no_target_removes_a_stale_target_file(run_copy, fake_registered):
+    from types import SimpleNamespace
+
+    from clutt3r_core.commands.query import write_target
+
+    query_command(run_copy, "the red thing", backend="fake-ground")
+    assert (run_copy / "query_target.npz").is_file()
+    assert write_target(run_copy, None, SimpleNamespace(target=None)) is None
+    assert not (run_copy / "query_target.npz").exists() and not (run_copy / "query_target.ply").exists()
