@@ -185,7 +185,12 @@ def export_ground_truth(run_dir: str | Path, out: str | Path, scene: str | Path 
     from clutt3r_core.io.sample_layout import write_sample_layout
     from clutt3r_core.runs import run_scene_folder
 
+    from clutt3r_core.runs import missing_run_file
+
     run_dir, out = Path(run_dir), Path(out)
+    missing = missing_run_file(run_dir, ("instances.npz", "cloud.npz"))
+    if missing is not None:
+        raise SceneFileError(missing, "missing: not a clutt3r run folder")
     if (out / "gt" / "objects.json").exists():
         raise SceneFileError(out / "gt", "already holds ground truth; export to a new folder")
     scene_dir = Path(scene) if scene is not None else run_scene_folder(run_dir)

@@ -125,5 +125,5 @@ def test_instance_maps_label_only_visible_surface(corrected_run):
 def test_export_without_a_recorded_scene_is_one_clear_error(tmp_path):
     from clutt3r_core.export_gt import export_ground_truth
 
-    with pytest.raises(SceneFileError):
+    with pytest.raises(SceneFileError, match="not a clutt3r run folder"):
         export_ground_truth(tmp_path / "nope", tmp_path / "out")
