@@ -42,6 +42,7 @@ from clutt3r_core.io.images import write_png
 from clutt3r_core.runs import save_run
 from clutt3r_core.scene import View
 from clutt3r_core.update.overlay import update_overlay
+from clutt3r_core.update.embed import resolve_embedder, with_embedder
 from clutt3r_core.update.state import state_from_run
 from clutt3r_core.update.types import ChangeConfig, PoseConfig, UpdateConfig
 from clutt3r_core.update.update import update_scene
@@ -87,10 +88,16 @@ def rot_err_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip((np.trace(Ra @ Rb.T) - 1) / 2, -1, 1))))
 
 
-def run_pair(scene_dir: Path, run_dir: Path, cfg: UpdateConfig, no_depth: bool, overlay: Path | None):
+def run_pair(scene_dir: Path, run_dir: Path, cfg: UpdateConfig, no_depth: bool, overlay: Path | None,
+             embedder: str = "auto"):
     sc = load_scene(scene_dir)
     inter = json.loads((scene_dir / "gt" / "interaction.json").read_text())
     state = state_from_run(run_dir)
+    # the stored instances' embeddings in the association's embedder (cached in the run after
+    # the first time: not part of an update's time, like the run's segmentation)
+    t, c = time.perf_counter(), time.process_time()
+    state = with_embedder(state, resolve_embedder(embedder, state), scene=scene_dir)
+    embed_s, embed_cpu_s = time.perf_counter() - t, time.process_time() - c
     view = sc.post_views[0]
     if no_depth:
         view = View(view.frame, view.rgb, view.camera, None, view.masks, view.name)
@@ -107,7 +114,8 @@ def run_pair(scene_dir: Path, run_dir: Path, cfg: UpdateConfig, no_depth: bool, 
     pred_removed = res.by_status("removed")
     pred_displaced = res.by_status("displaced")
     out = {
-        "scene": scene_dir.parent.name, "time_s": dt, "cpu_s": dc,
+        "scene": scene_dir.parent.name, "time_s": dt, "cpu_s": dc, "embedder": state.embedder,
+        "embed_run_s": embed_s, "embed_run_cpu_s": embed_cpu_s,
         "removed_found": main.get(rem_o) in pred_removed,
         "removed_pred": len(pred_removed), "removed_pred_true": sum(inst_obj.get(k) == rem_o for k in pred_removed),
         "displaced_visible": dis_visible, "displaced_has_instance": dis_o in main,
@@ -170,6 +178,8 @@ def main() -> None:
     ap.add_argument("--no-early-exit", action="store_true", help="always run the fine stage")
     ap.add_argument("--min-fit-iou", type=float, default=ChangeConfig().min_fit_iou,
                     help="ChangeConfig.min_fit_iou (appearance matches below this fit are judged unmatched)")
+    ap.add_argument("--embedder", default="auto",
+                    help="mask embedder for S_semantic: auto (learned when installed) or a registry name")
     ap.add_argument("--tag", default="", help="suffix of results_<tag>.json")
     a = ap.parse_args()
     cfg = UpdateConfig(change=ChangeConfig(verify=not a.no_verify, min_fit_iou=a.min_fit_iou),
@@ -179,7 +189,8 @@ def main() -> None:
     for i in range(a.pairs):
         preset, seed = PRESETS[i % 3], a.seed0 + i // 3
         scene_dir, run_dir = make_pair(a.out, preset, seed)
-        r = run_pair(scene_dir, run_dir, cfg, a.no_depth, a.out / f"overlay_{preset}_{seed}{'_' + a.tag if a.tag else ''}.png")
+        r = run_pair(scene_dir, run_dir, cfg, a.no_depth, a.out / f"overlay_{preset}_{seed}{'_' + a.tag if a.tag else ''}.png",
+                     a.embedder)
         rows.append(r)
         print(json.dumps({k: (round(v, 3) if isinstance(v, float) else v) for k, v in r.items() if k != "statuses"}),
               flush=True)

@@ -22,6 +22,7 @@ def update_command(
     scene: Path | None = None,
     out: Path | None = None,
     config: UpdateConfig = UpdateConfig(),
+    embedder: str = "auto",
     overlay: bool = True,
 ) -> None:
     """Update the scene state from one post-interaction image and write update.json.
@@ -40,6 +41,10 @@ def update_command(
         scene: the scene folder (default: the one the run recorded).
         out: state folder to write (default RUN/updates/NN_frame_FFFFFF).
         config: association, change detection and pose settings (paper values, Sec. IV).
+        embedder: mask embedder for S_semantic: "auto" = the learned imagenet-minilm when the
+            language extra is installed, else the run's embedder; or a registry name. The
+            stored instances are re-embedded from the run's views when needed (cached in
+            RUN/query_cache.npz); the name is recorded in update.json and state.json.
         overlay: also write overlay.png (before | after on the new image).
     """
     from rich.console import Console
@@ -79,6 +84,12 @@ def update_command(
         view = sc.view_by_frame(frame)
         if view.masks is None:
             raise SceneFileError(scene_dir, f"post-interaction frame {frame} has no mask candidates")
+    from clutt3r_core.update.embed import resolve_embedder, with_embedder
+
+    name = resolve_embedder(embedder, state)
+    if name != state.embedder:
+        with console.status(f"embedding the stored instances with {name}"):
+            state = with_embedder(state, name, scene=scene if image is not None else scene_dir)
     done = [h.frame for h in state.history]
     if image is None and frame in done:
         raise Clutt3rError(f"frame {frame} was already applied in this chain (steps {done}); "

@@ -244,7 +244,9 @@ def save_state(state: SceneState, folder: str | Path, result: UpdateResult | Non
     }
     atomic_write_bytes(folder / "state.json", json.dumps(meta, indent=1).encode())
     if result is not None:
-        atomic_write_bytes(folder / "update.json", json.dumps(result.to_json(), indent=1).encode())
+        # the embedder that associated (issue 10 schema + this field): S_semantic depends on it
+        doc = {**result.to_json(), "embedder": state.embedder}
+        atomic_write_bytes(folder / "update.json", json.dumps(doc, indent=1).encode())
         arrays = {}
         for r in result.instances:
             if r.pose is not None:
