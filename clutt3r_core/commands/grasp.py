@@ -23,20 +23,20 @@ __all__ = ["grasp_command"]
 
 def _target_from_query(run: Path, text: str, scene: Path | None) -> tuple[int, str]:
     """(instance id, note) for a text query through the language backend (clutt3r_core.query)."""
-    from clutt3r_core.errors import Clutt3rError, MissingDependencyError
+    from clutt3r_core.errors import Clutt3rError
 
     hint = "pick the instance by id instead: clutt3r grasp RUN --instance K (ids in the viewer or instances.npz)"
     try:
         from clutt3r_core.query import RunQuery
     except ImportError as e:
-        raise SystemExit(f"clutt3r grasp: text queries need the language backend ({e}); {hint}") from None
+        raise Clutt3rError(f"text queries need the language backend ({e}); {hint}") from e
+    # Re-raised typed (not SystemExit) so the CLI prints one line with status 2 and --debug works
+    # (issue 14); the hint is kept. A damaged run fails earlier, in load_run, naming its file.
     try:
         rq = RunQuery.open(run, scene=scene, progress=True)
         res = rq.query(text)
-    except MissingDependencyError as e:
-        raise SystemExit(f"clutt3r grasp: text queries need the language backend: {e}; {hint}") from None
     except Clutt3rError as e:
-        raise SystemExit(f"clutt3r grasp: the query could not be answered: {e}; {hint}") from None
+        raise Clutt3rError(f"the query could not be answered: {e}; {hint}") from e
     if res.target is None:
         raise SystemExit(f"clutt3r grasp: the run has no instance for '{text}' to name")
     note = "" if res.confident else f"the query '{text}' matches instance {res.target} only weakly"
@@ -69,7 +69,6 @@ def grasp_command(
     """
     from rich.console import Console
 
-    from clutt3r_core.errors import Clutt3rError
     from clutt3r_core.grasping import load_base_frame
     from clutt3r_core.grasping.request import request_from_segmentation, run_views
     from clutt3r_core.registry import create_backend, default_backend
@@ -80,29 +79,28 @@ def grasp_command(
         raise SystemExit("clutt3r grasp: give either a QUERY or --instance K (exactly one)")
     if top < 1:
         raise SystemExit(f"clutt3r grasp: --top must be >= 1, got {top}")
-    try:
-        T_base_world = load_base_frame(base_frame) if base_frame is not None else None
-        seg = load_run(run)
-        notes: list[str] = []
-        if query:
-            instance, note = _target_from_query(run, query, scene)
-            if note:
-                notes.append(note)
-        if not 0 <= instance < seg.num_instances:
-            raise SystemExit(f"clutt3r grasp: {run}: instance {instance} does not exist "
-                             f"(the run has instances 0..{seg.num_instances - 1})")
-        views, warn = run_views(run, scene)
-        if warn:
-            notes.append(warn)
-        name = planner or default_backend("grasp_planner")
-        kwargs = {"config": config} if name == "antipodal" else {}
-        gp = create_backend("grasp_planner", name, **kwargs)
-        req = request_from_segmentation(seg, instance, views)
-        t0 = time.perf_counter()
-        gs = gp.plan(req)
-        dt = time.perf_counter() - t0
-    except Clutt3rError as e:
-        raise SystemExit(f"clutt3r grasp: {e}") from None
+    # Typed errors (a damaged run, a bad base frame) are not caught here: the CLI prints them as one
+    # line with status 2, and --debug shows the traceback (issue 14).
+    T_base_world = load_base_frame(base_frame) if base_frame is not None else None
+    seg = load_run(run)
+    notes: list[str] = []
+    if query:
+        instance, note = _target_from_query(run, query, scene)
+        if note:
+            notes.append(note)
+    if not 0 <= instance < seg.num_instances:
+        raise SystemExit(f"clutt3r grasp: {run}: instance {instance} does not exist "
+                         f"(the run has instances 0..{seg.num_instances - 1})")
+    views, warn = run_views(run, scene)
+    if warn:
+        notes.append(warn)
+    name = planner or default_backend("grasp_planner")
+    kwargs = {"config": config} if name == "antipodal" else {}
+    gp = create_backend("grasp_planner", name, **kwargs)
+    req = request_from_segmentation(seg, instance, views)
+    t0 = time.perf_counter()
+    gs = gp.plan(req)
+    dt = time.perf_counter() - t0
     gs = gs.top(top)
     if gs.message:
         notes.append(gs.message)

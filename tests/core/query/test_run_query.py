@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from clutt3r_core.commands.query import query_command
-from clutt3r_core.errors import SceneFileError
+from clutt3r_core.errors import Clutt3rError, SceneFileError
 from clutt3r_core.query import RunQuery
 from clutt3r_core.query.evidence import CACHE_NAME
 from clutt3r_core.registry import REGISTRY
@@ -98,15 +98,16 @@ def test_cli_human_output(run_copy, fake_registered, capsys):
 
 @pytest.mark.parametrize("text", ["", "   "])
 def test_cli_empty_query(run_copy, text):
-    with pytest.raises(SystemExit, match="empty query"):
+    # query_command lets typed errors reach the CLI (one line, status 2: tests/core/robustness)
+    with pytest.raises(Clutt3rError, match="empty query"):
         query_command(run_copy, text)
 
 
 def test_cli_unknown_run_folder(tmp_path):
-    with pytest.raises(SystemExit, match="no such run folder"):
+    with pytest.raises(Clutt3rError, match="no such run folder"):
         query_command(tmp_path / "nope", "mug")
     (tmp_path / "empty").mkdir()
-    with pytest.raises(SystemExit, match="not a clutt3r run folder"):
+    with pytest.raises(Clutt3rError, match="not a clutt3r run folder"):
         query_command(tmp_path / "empty", "mug")
 
 
@@ -114,7 +115,7 @@ def test_run_without_scene_and_without_cache(run_copy, fake_registered):
     info = json.loads((run_copy / "run.json").read_text())
     info["scene"] = None
     (run_copy / "run.json").write_text(json.dumps(info))
-    with pytest.raises(SystemExit, match="pass --scene"):
+    with pytest.raises(Clutt3rError, match="pass --scene"):
         query_command(run_copy, "mug", backend="fake-ground")
     with pytest.raises(SceneFileError):
         RunQuery.open(run_copy, grounder=FakeGrounder())

@@ -224,9 +224,7 @@ def test_run_commands_refuse_a_partly_deleted_run(saved_run, tmp_path, capfd, co
         err, code = err + code + "\n", 1
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert len(lines) == 1 and str(p) in lines[0] and "missing" in lines[0], err
-    # issue 14: user errors exit with status 2 (grasp and query catch the error themselves and exit 1)
-    if code != 2:
-        pytest.xfail(f"`clutt3r {command}` exits with status {code}, not 2, on a damaged run")
+    assert code == 2, f"`clutt3r {command}` exits with status {code}, not 2 (issue 14: user errors exit 2)"
 
 
 def test_viewer_refuses_a_partly_deleted_run(saved_run, tmp_path):
