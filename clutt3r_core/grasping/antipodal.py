@@ -96,9 +96,11 @@ class AntipodalConfig:
     other across the object; looser than ``pair_angle_deg`` since the axis comes from the normals)."""
     min_pair_distance: float = 0.004
     """Shortest contact distance, metres (thinner than ~a voxel is noise, not an object)."""
-    finger_margin: float = 0.01
+    finger_margin: float = 0.006
     """Room between each contact and its finger when the hand closes in, metres (the fused
-    surface is within ~3 mm of the true one; 1 cm leaves the finger free of the object)."""
+    surface is within ~3 mm of the true one). Measured against true meshes (oracle targets,
+    top-1 success at mu 0.5): 10 mm -> 6 mm raised hard seeds 0-2 from 33 % to 40 %, held-out
+    hard seeds 3-4 from 21 % to 31 %, easy + intermediate from 60 % to 62 %."""
     min_finger_margin: float = 0.003
     """Least room per side when the object barely fits the maximum opening, metres."""
     max_pairs: int = 96
