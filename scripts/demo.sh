@@ -6,5 +6,5 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/_env.sh
 ensure_system_packages
-ensure_venv '.'
+ensure_venv '.[language]'   # the offline language backend: text queries in the demo
 exec .venv/bin/clutt3r demo "$@"
