@@ -7,7 +7,8 @@ when that is the colour histogram (``appearance-hsv``) it cannot tell objects ap
 uses a learned image embedder when one is installed:
 
 * ``resolve_embedder("auto", state)`` = ``LEARNED`` (``imagenet-minilm``, EfficientNet-Lite0
-  features; the ``language`` extra) when it can be built here, else the state's embedder.
+  features; the ``language`` extra) when it can be built here and the state has a run folder
+  to re-embed from, else the state's embedder.
 * ``with_embedder(state, name)`` returns the state with its instances' embeddings in
   ``name``'s space: unchanged when it already is; else recomputed from the run's initial views
   and masks with the multi-view instance evidence of ``clutt3r_core.query`` (each instance:
@@ -42,9 +43,11 @@ def learned_available() -> bool:
 
 
 def resolve_embedder(name: str | None, state) -> str:
-    """``auto`` / None -> ``LEARNED`` when installed, else ``state.embedder``; any other name as is."""
+    """``auto`` / None -> ``LEARNED`` when installed and the state can be re-embedded (it comes
+    from a run folder, or already is in that space), else ``state.embedder``; other names as is."""
     if name in (None, "", AUTO):
-        return LEARNED if learned_available() else state.embedder
+        ok = learned_available() and (state.run is not None or state.embedder == LEARNED)
+        return LEARNED if ok else state.embedder
     return name
 
 

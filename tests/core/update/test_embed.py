@@ -58,6 +58,8 @@ def test_auto_and_errors(run_dir, monkeypatch):
     assert embed.resolve_embedder("auto", st) == embed.LEARNED
     from dataclasses import replace
 
+    assert embed.resolve_embedder("auto", replace(st, run=None)) == st.embedder  # nothing to re-embed from
+
     with pytest.raises(SceneError, match="run folder"):
         embed.with_embedder(replace(st, run=None), "fake-ground", embedder=FakeGrounder())
 
