@@ -263,13 +263,17 @@ def run_job(job: Job) -> JobResult:
     scene = subset_views(prep.scene, job.setting.views)
     t0 = time.perf_counter()
     with MemoryProbe() as mem:
+        from clutt3r_core.masks import ensure_candidates, scene_has_masks
+
         mask_stage: tuple[tuple[str, float], ...] = ()
         if job.setting.masks != "scene":
-            from clutt3r_core.masks import ensure_candidates
-
             # replaced on the views used only; the generator's time is the job's first stage
             scene, prov = ensure_candidates(scene, job.setting.masks)
             mask_stage = (("masks", prov.seconds),)
+        elif not scene_has_masks(scene):
+            # ours would fill them in (segment's masks="auto") and the baselines refuse: a result
+            # labelled "scene" must be on the scene's own candidates
+            raise SceneError(f"{job.scene.name}: views without mask candidates; run with --masks builtin")
         pred = _run_method(job.method, scene)
     wall = time.perf_counter() - t0
     ap, m = evaluate_instances(pred.points, pred.instance, pred.scores, scene.ground_truth)

@@ -61,3 +61,15 @@ def test_builtin_setting_runs_on_generated_candidates(tmp_path, monkeypatch):
     md = write_report([b], tmp_path / "rep", main=Setting(3, masks="builtin")).read_text()
     assert "`builtin` mask candidates" in md
     assert json.loads((tmp_path / "rep" / "results.json").read_text())["main_setting"]["masks"] == "builtin"
+
+
+def test_scene_setting_refuses_a_scene_without_candidates(tmp_path, monkeypatch):
+    import dataclasses
+
+    scenes = synth_suite(1, difficulties=("easy",), width=160, height=120, views=3, n_objects=3, seed0=3)
+    job = plan_jobs(scenes, ["ours"], [Setting(3)], tmp_path)[0]
+    prep = runner._load_prepared(str(tmp_path), job.scene)
+    bare = dataclasses.replace(prep.scene, views=tuple(dataclasses.replace(v, masks=None) for v in prep.scene.views))
+    monkeypatch.setattr(runner, "_load_prepared", lambda cache, spec: runner._Prepared(bare, prep.mean_occlusion))
+    with pytest.raises(SceneError, match="--masks builtin"):
+        runner.run_job(job)
