@@ -10,6 +10,8 @@ import json
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from clutt3r_core.errors import SceneError, SceneFileError
 from clutt3r_core.masks import MaskProvenance, create_mask_generator, ensure_candidates
@@ -119,3 +121,37 @@ def test_missing_depth_is_reported_before_generation():
     no_depth = dataclasses.replace(sc, views=tuple(dataclasses.replace(x, depth=None) if x is v else x for x in sc.views))
     with pytest.raises(SceneError, match="no depth"):
         segment(no_depth)
+
+
+class _OneMask:
+    """A cheap generator: one full-image candidate (the rule under test, not the generator)."""
+
+    name = "one"
+
+    def generate(self, view):
+        from clutt3r_core.scene import MaskCandidates
+
+        h, w = view.camera.height, view.camera.width
+        return MaskCandidates(np.ones((1, h, w), bool), np.array([1]))
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.sets(st.integers(0, 2)))
+def test_auto_generates_exactly_the_missing_views(missing_idx):
+    from unittest import mock
+
+    import clutt3r_core.masks as masks_mod
+
+    sc = tiny_scene()
+    frames = [v.frame for v in sc.initial_views]
+    missing = {frames[i] for i in missing_idx if i < len(frames)}
+    part = _without(sc, missing)
+    with mock.patch.object(masks_mod, "create_mask_generator", lambda name="builtin", **kw: _OneMask()):
+        out, prov = ensure_candidates(part, "auto")
+    assert set(prov.generated) == missing
+    assert prov.generator == ("scene" if not missing else "one")
+    for a, b in zip(part.initial_views, out.initial_views):
+        assert b.masks is not None
+        assert (b.masks is a.masks) == (a.frame not in missing)
+    post = [i for i in range(len(part.views)) if i not in part.initial]
+    assert all(out.views[i] is part.views[i] for i in post)  # post-interaction views untouched
