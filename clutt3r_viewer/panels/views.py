@@ -199,15 +199,14 @@ class ViewsPanel(Panel):
 
     def _show(self, s: "Session") -> None:
         """Draw the selected source's candidates; start their generation when not cached
-        (the run's overlay stays until they are ready). Call with ``s.lock`` held."""
+        (meanwhile the view shows the run's own, labelled so). Call with ``s.lock`` held."""
         name, vi = self.source, s.state.view
-        if name == RUN:
-            self.image.image = overlay_image(s.app.data, vi, s.state.node)
-            self.image.label = "masks (leaf tint = instance, white = parent, yellow = selected)"
-            return
-        cands = self.generated.get((vi, name))
+        cands = None if name == RUN else self.generated.get((vi, name))
         if cands is None:
-            if self.worker is None or not self.worker.is_alive():
+            self.image.image = overlay_image(s.app.data, vi, s.state.node)
+            self.image.label = ("masks (leaf tint = instance, white = parent, yellow = selected)" if name == RUN
+                                else f"the run's masks while {name} candidates are generated")
+            if name != RUN and (self.worker is None or not self.worker.is_alive()):
                 self.worker = threading.Thread(target=self._generate, args=(s, vi, name), daemon=True)
                 self.worker.start()
             return  # _generate draws them (or the next selection does) once they exist
