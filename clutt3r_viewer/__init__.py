@@ -103,6 +103,13 @@ def start(
             app.compute_in_background(compute_scene(load_scene(p)))
         else:
             app.stop()
+            from clutt3r_core.runs import RUN_FILES, missing_run_file
+
+            # a run folder with some of its files deleted: name the missing one (issue 14)
+            missing = missing_run_file(p) if p.is_dir() else None
+            if missing is not None and any((p / f).exists() for f in (*RUN_FILES, "run.json")):
+                raise SceneFileError(missing, "missing: the run folder is incomplete (partly deleted?); "
+                                     "segment the scene again")
             raise SceneFileError(p, "neither a run folder (instances.npz + trace/) nor a scene folder (transforms.json)")
     return app
 

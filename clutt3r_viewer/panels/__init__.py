@@ -20,9 +20,10 @@ from clutt3r_viewer.panels.updates import UpdatesPanel
 import clutt3r_viewer.panels.update_sources  # noqa: E402,F401  (registers the update chain's frames and pose replay)
 from clutt3r_viewer.panels.update_curves import UpdateCurvesPanel
 from clutt3r_viewer.panels.views import ViewsPanel
+from clutt3r_viewer.panels.warnings import WarningsPanel
 
 __all__ = ["Panel", "Change", "PANELS", "ViewsPanel", "ScenePanel", "InstancesPanel", "TreePanel", "LeafGraphPanel",
-           "ReplayPanel", "QueryPanel", "EditPanel", "GraspsPanel", "UpdatesPanel"]
+           "ReplayPanel", "QueryPanel", "EditPanel", "GraspsPanel", "UpdatesPanel", "WarningsPanel"]
 
-PANELS: list[type[Panel]] = [ViewsPanel, ScenePanel, InstancesPanel, TreePanel, LeafGraphPanel, ReplayPanel,
-                             ExplainPanel, QueryPanel, EditPanel, GraspsPanel, UpdatesPanel, UpdateCurvesPanel]
+PANELS: list[type[Panel]] = [ViewsPanel, WarningsPanel, ScenePanel, InstancesPanel, TreePanel, LeafGraphPanel,
+                             ReplayPanel, ExplainPanel, QueryPanel, EditPanel, GraspsPanel, UpdatesPanel, UpdateCurvesPanel]
