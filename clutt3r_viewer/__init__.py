@@ -53,6 +53,18 @@ def start(
     from clutt3r_viewer.app import ViewerApp
     from clutt3r_viewer.loading import is_run_dir, is_scene_dir
 
+    if isinstance(run_or_scene, (str, Path)):  # refuse before the server starts (and prints its banner)
+        from clutt3r_core.runs import RUN_FILES, missing_run_file
+
+        p = Path(run_or_scene)
+        if not is_run_dir(p) and not is_scene_dir(p):
+            # a run folder with some of its files deleted: name the missing one (issue 14)
+            missing = missing_run_file(p) if p.is_dir() else None
+            if missing is not None and any((p / f).exists() for f in (*RUN_FILES, "run.json")):
+                raise SceneFileError(missing, "missing: the run folder is incomplete (partly deleted?); "
+                                     "segment the scene again")
+            raise SceneFileError(p, "neither a run folder (instances.npz + trace/) nor a scene folder "
+                                 "(transforms.json)")
     app = ViewerApp(None, host=host, port=port, lod=lod, verbose=verbose)
 
     def finish(data: ViewerData) -> ViewerData:
@@ -103,13 +115,6 @@ def start(
             app.compute_in_background(compute_scene(load_scene(p)))
         else:
             app.stop()
-            from clutt3r_core.runs import RUN_FILES, missing_run_file
-
-            # a run folder with some of its files deleted: name the missing one (issue 14)
-            missing = missing_run_file(p) if p.is_dir() else None
-            if missing is not None and any((p / f).exists() for f in (*RUN_FILES, "run.json")):
-                raise SceneFileError(missing, "missing: the run folder is incomplete (partly deleted?); "
-                                     "segment the scene again")
             raise SceneFileError(p, "neither a run folder (instances.npz + trace/) nor a scene folder (transforms.json)")
     return app
 

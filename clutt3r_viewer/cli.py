@@ -32,17 +32,13 @@ def view_command(
     """
     import sys
 
-    from clutt3r_core.errors import Clutt3rError
     from clutt3r_viewer import serve
 
     if host not in ("127.0.0.1", "localhost", "::1"):  # issue 14: the page can edit the run's labels
         print(f"warning: serving on {host}:{port}: anyone who can reach this address on your network can view "
               "this run and edit its labels (omit --host to keep it on 127.0.0.1)", file=sys.stderr, flush=True)
-    try:
-        serve(path, port=port, host=host, scene=scene, lod=lod, images=not no_images)
-    except Clutt3rError as e:  # one clear line, not a traceback (e.g. the run's scene folder moved)
-        print(f"clutt3r view: {e}", file=sys.stderr)
-        raise SystemExit(2) from None
+    # typed errors (a damaged run, a moved scene folder) reach the CLI: one line, status 2, --debug (issue 14)
+    serve(path, port=port, host=host, scene=scene, lod=lod, images=not no_images)
 
 
 def export_rerun_command(run: Positional[Path], out: Positional[Path], scene: Path | None = None, max_points: int = 50_000) -> None:

@@ -105,8 +105,6 @@ def test_a_run_finds_the_scene_it_recorded_and_scene_overrides_it(tiny_seg, tiny
 def test_a_moved_scene_is_a_clear_error_and_no_images_opens_the_run(tiny_seg, tiny_scene, tmp_path, capsys):
     import shutil
 
-    from clutt3r_viewer.cli import view_command
-
     run, scene_dir = _run_with_recorded_scene(tiny_seg, tiny_scene, tmp_path)
     shutil.move(str(scene_dir), str(tmp_path / "elsewhere"))
     with pytest.raises(SceneFileError, match="run.json") as e:
@@ -117,11 +115,14 @@ def test_a_moved_scene_is_a_clear_error_and_no_images_opens_the_run(tiny_seg, ti
     assert len(load_viewer_data(run, tmp_path / "elsewhere").views) == len(tiny_scene.initial)
     from tests.viewer.conftest import free_port
 
+    from clutt3r_core.cli import main
+
     with pytest.raises(SystemExit) as ex:  # the CLI: one line on stderr, exit 2, no server left running
-        view_command(run, port=free_port())
+        main(["view", str(run), "--port", str(free_port())])
     assert ex.value.code == 2
     err = capsys.readouterr().err
-    assert err.startswith("clutt3r view: ") and "run.json" in err and "Traceback" not in err
+    assert err.startswith("clutt3r: error: ") and "run.json" in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1
     import clutt3r_viewer
 
     app = clutt3r_viewer.start(run, port=free_port(), images=False)
