@@ -15,15 +15,19 @@ Rules, in order (each instance takes at most one mask and each mask at most one 
 
 1. Leaves first, spatial stage: (leaf, instance) pairs with S_spatial >= tau_spat are matched
    greedily, highest first (Algorithm 1's stage 1).
-2. Leaves, semantic stage: remaining pairs with S_semantic >= tau_sem, highest first
-   (stage 2; this is what finds a displaced object, whose projection has moved away).
+2. Leaves, semantic stage: remaining pairs with S_semantic >= tau_sem (the embedder's own
+   value, ``TAU_SEM_BY_EMBEDDER``), highest first (stage 2; this is what finds a displaced
+   object, whose projection has moved away). With new depth, instances whose old place still
+   shows them (rule 5's depth presence test) have not moved and are left out of this stage
+   (ours, ``exclude_present``).
 3. Parent substitution (Sec. III-B.3): a residual (unmatched) leaf is replaced by its tree
    parent when all of the parent's descendant leaves are residual; the parents are then
    matched to the remaining instances by rules 1 and 2.
 4. Parent upgrade (ours): an instance matched to a leaf takes the leaf's parent instead when
    every other descendant leaf of that parent is residual and the parent's S_spatial is higher
    (the leaf was an over-segmented part of a static object; its whole mask is the parent).
-5. An unmatched instance is ``occluded`` when its own projection is under ``min_area_px``
+5. An unmatched instance with fewer than ``min_points`` stored points is a segmentation
+   fragment: ``occluded`` (not judged, kept). Else it is ``occluded`` when its own projection is under ``min_area_px``
    (outside the image, or too small to judge) or its visible projection keeps less than
    ``hidden_fraction`` of it, or (with new depth) when most of its visible projection is
    covered by something ``nearer_margin`` in front of it. It is ``static`` (ours: present, its
@@ -63,6 +67,7 @@ class Projection:
         own_area: (K,) int64 pixels of each instance's projection alone (no occluders), in the image.
         visible_area: (K,) int64 pixels each instance wins in ``label``.
         color: (H, W, 3) uint8 stored colour of the winning point (0 where none), or None.
+        n_points: (K,) int64 stored points of each instance, or None.
     """
 
     ids: np.ndarray
@@ -71,6 +76,7 @@ class Projection:
     own_area: np.ndarray
     visible_area: np.ndarray
     color: np.ndarray | None = None
+    n_points: np.ndarray | None = None
 
     def visible(self, k: int) -> np.ndarray:
         return self.label == k
@@ -100,7 +106,8 @@ def project_instances(points: np.ndarray, instance: np.ndarray, ids: np.ndarray,
         sk = splat(points[instance == k], camera, voxel, scale)
         own[i] = int(np.isfinite(sk.zbuf).sum()) if sk.h and sk.w else 0
     vis = np.array([int(np.count_nonzero(label == k)) for k in ids], np.int64)
-    return Projection(np.asarray(ids, np.int32), label, depth, own, vis, color)
+    npts = np.array([int(np.count_nonzero(instance == k)) for k in ids], np.int64)
+    return Projection(np.asarray(ids, np.int32), label, depth, own, vis, color, npts)
 
 
 @dataclass(frozen=True, eq=False)
@@ -134,6 +141,8 @@ def unmatched_status(view: View, proj: Projection, i: int, cfg: AssociationConfi
     """Rule 5 for instance ``proj.ids[i]``: (status, how) = ("occluded" | "static" | "removed",
     "" or "present-depth" / "present-colour")."""
     masks = view.masks
+    if proj.n_points is not None and proj.n_points[i] < cfg.min_points:
+        return "occluded", "too-small"
     own, vis = proj.own_area[i], proj.visible_area[i]
     if own < cfg.min_area_px or vis < cfg.hidden_fraction * own:
         return "occluded", ""
@@ -215,13 +224,19 @@ def associate(
     leaves = subtree_leaves(tree.parent, is_leaf)
     matched_node = np.full(K, -1, np.int64)  # tree node index per instance
     how = [""] * K
+    tau_sem = cfg.tau_sem if cfg.tau_sem is not None else 0.65
+    # with depth: instances still where they were do not compete for masks by appearance
+    in_place = set()
+    if cfg.exclude_present and view.depth is not None:
+        in_place = {k for k in range(K) if unmatched_status(view, proj, k, cfg) == ("static", "present-depth")}
 
     def run_stages(nodes: list[int], prefix: str) -> None:
         free_k = [k for k in range(K) if matched_node[k] < 0]
-        for kind, score, tau in (("spatial", s_spat, cfg.tau_spat), ("semantic", s_sem, cfg.tau_sem)):
+        for kind, score, tau in (("spatial", s_spat, cfg.tau_spat), ("semantic", s_sem, tau_sem)):
             rows = [int(node_mask[n]) for n in nodes if n not in set(matched_node.tolist())]
             back = {int(node_mask[n]): n for n in nodes}
-            for r, k in _greedy(score, tau, rows, [k for k in free_k if matched_node[k] < 0]):
+            cols = [k for k in free_k if matched_node[k] < 0 and (kind == "spatial" or k not in in_place)]
+            for r, k in _greedy(score, tau, rows, cols):
                 matched_node[k] = back[r]
                 how[k] = prefix + kind
 

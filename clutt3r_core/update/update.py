@@ -15,6 +15,7 @@ for its neighbour's motion. Static instances are left untouched.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -24,7 +25,7 @@ from clutt3r_core.segmentation.trees import build_instance_tree
 from clutt3r_core.update.associate import Association, Projection, associate, project_instances, unmatched_status
 from clutt3r_core.update.project import mask_iou
 from clutt3r_core.update.state import SceneState
-from clutt3r_core.update.types import InstanceUpdate, NewMask, PoseProblem, UpdateConfig, UpdateResult
+from clutt3r_core.update.types import TAU_SEM_BY_EMBEDDER, InstanceUpdate, NewMask, PoseProblem, UpdateConfig, UpdateResult
 
 __all__ = ["update_scene", "UpdateDetails"]
 
@@ -76,6 +77,9 @@ def update_scene(
         from clutt3r_core.embeddings import create_embedder
 
         embedder = create_embedder(state.embedder)
+    if config.association.tau_sem is None:  # the embedder's own threshold (types.TAU_SEM_BY_EMBEDDER)
+        config = replace(config, association=replace(
+            config.association, tau_sem=TAU_SEM_BY_EMBEDDER.get(state.embedder, 0.65)))
     cam = view.camera
     masks: MaskCandidates = view.masks
     ids = state.instance_ids
