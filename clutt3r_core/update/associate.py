@@ -124,7 +124,8 @@ class Association:
             unmatched instances, "" for matched ones.
         new_masks: indices into ``masks`` of unmatched masks that are new objects.
         s_spatial: (M, K) float32 S_spatial of every mask (by index into ``masks``) and instance.
-        s_semantic: (M, K) float32 S_semantic.
+        s_semantic: (M, K) float32 S_semantic; NaN for masks that never reached the semantic
+            stage when the embeddings were computed lazily.
     """
 
     tree: InstanceTree
@@ -190,14 +191,17 @@ def associate(
     view: View,
     proj: Projection,
     embeddings: np.ndarray,
-    mask_embeddings: np.ndarray,
+    mask_embeddings,
     cfg: AssociationConfig = AssociationConfig(),
     tree: InstanceTree | None = None,
 ) -> Association:
     """Match ``view.masks`` to the projected stored instances (rules in the module docstring).
 
     embeddings: (K, D) stored instance embeddings (rows follow ``proj.ids``);
-    mask_embeddings: (M, D) embeddings of ``view.masks`` (rows follow the mask stack).
+    mask_embeddings: (M, D) embeddings of ``view.masks`` (rows follow the mask stack), or a
+    function (n,) int mask indices -> (n, D): then only the masks that reach the semantic stage
+    are embedded (ours: the learned embedder is most of an update's time, docs/update.md), and
+    ``Association.s_semantic`` is NaN in the rows never needed.
     """
     masks: MaskCandidates = view.masks if view.masks is not None else MaskCandidates.empty(
         view.camera.height, view.camera.width)
@@ -215,8 +219,20 @@ def associate(
         inter = np.bincount(lab_idx[masks.masks[m].reshape(-1)], minlength=K + 1)[:K]
         union = areas[m] + proj.visible_area - inter
         s_spat[m] = np.where(union > 0, inter / np.maximum(union, 1), 0.0)
-    e_new = np.asarray(mask_embeddings, np.float32)
-    s_sem = np.clip(e_new @ np.asarray(embeddings, np.float32).T, -1, 1) if K and M else np.zeros((M, K), np.float32)
+    e_inst = np.asarray(embeddings, np.float32)
+    s_sem = np.full((M, K), np.nan, np.float32)
+    have = np.zeros(M, bool)
+
+    def sem_rows(rows: list[int]) -> None:
+        need = np.array([r for r in rows if not have[r]], np.int64)
+        if not len(need) or not K:
+            return
+        e = mask_embeddings(need) if callable(mask_embeddings) else np.asarray(mask_embeddings)[need]
+        s_sem[need] = np.clip(np.asarray(e, np.float32) @ e_inst.T, -1, 1)
+        have[need] = True
+
+    if not callable(mask_embeddings):
+        sem_rows(list(range(M)))
 
     # tree nodes as indices into the mask stack
     node_mask = np.array([masks.index_of(int(i)) for i in tree.mask_ids], np.int64)
@@ -236,6 +252,8 @@ def associate(
             rows = [int(node_mask[n]) for n in nodes if n not in set(matched_node.tolist())]
             back = {int(node_mask[n]): n for n in nodes}
             cols = [k for k in free_k if matched_node[k] < 0 and (kind == "spatial" or k not in in_place)]
+            if kind == "semantic" and rows and cols:
+                sem_rows(rows)
             for r, k in _greedy(score, tau, rows, cols):
                 matched_node[k] = back[r]
                 how[k] = prefix + kind

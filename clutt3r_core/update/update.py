@@ -86,7 +86,9 @@ def update_scene(
     voxel, scale = state.voxel_size, config.change.splat_scale
 
     tree = build_instance_tree(masks, view.frame)
-    mask_emb = embedder.embed_masks(view.rgb, masks.masks) if len(masks) else np.zeros((0, state.embeddings.shape[1]))
+    def mask_emb(idx: np.ndarray) -> np.ndarray:  # lazily: only masks that reach the semantic stage
+        return embedder.embed_masks(view.rgb, masks.masks[idx])
+
     proj_all = project_instances(state.points, state.instance, ids, cam, voxel, scale, colors=state.colors)
     assoc = associate(view, proj_all, state.embeddings, mask_emb, config.association, tree=tree)
     if details is not None:

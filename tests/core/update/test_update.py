@@ -135,3 +135,26 @@ def test_view_without_masks_is_refused():
     empty = View(v.frame, v.rgb, v.camera, v.depth, MaskCandidates.empty(v.camera.height, v.camera.width))
     res = update_scene(st, empty, FAST)  # nothing detected: every visible object is checked by depth
     assert [r.status for r in res.instances] == ["static", "static"]
+
+
+def test_lazy_mask_embeddings_match_the_eager_ones_and_skip_spatial_matches():
+    from clutt3r_core.update.associate import associate, project_instances
+    from clutt3r_core.update.types import AssociationConfig
+
+    st = _state()
+    c = st.points_of(0).astype(np.float64).mean(axis=0)
+    view = _post(T0=yaw_motion(25.0, (0.0, -0.05, 0.0), c))
+    proj = project_instances(st.points, st.instance, st.instance_ids, view.camera, 0.005, colors=st.colors)
+    emb = AppearanceEmbedder()
+    eager = associate(view, proj, st.embeddings, emb.embed_masks(view.rgb, view.masks.masks), AssociationConfig(tau_sem=0.65))
+    asked = []
+
+    def lazy_fn(idx):
+        asked.extend(idx.tolist())
+        return emb.embed_masks(view.rgb, view.masks.masks[idx])
+
+    lazy = associate(view, proj, st.embeddings, lazy_fn, AssociationConfig(tau_sem=0.65))
+    assert lazy.mask_index.tolist() == eager.mask_index.tolist() and lazy.match == eager.match
+    spatial = {int(m) for m, how in zip(lazy.mask_index, lazy.match) if how == "spatial"}
+    assert spatial and not spatial & set(asked)  # the static box's mask was never embedded
+    assert np.all(np.isnan(lazy.s_semantic[sorted(spatial)]))
