@@ -22,7 +22,7 @@ def update_command(
     scene: Path | None = None,
     out: Path | None = None,
     config: UpdateConfig = UpdateConfig(),
-    embedder: str = "auto",
+    embedder: str = "run",
     overlay: bool = True,
 ) -> None:
     """Update the scene state from one post-interaction image and write update.json.
@@ -41,8 +41,9 @@ def update_command(
         scene: the scene folder (default: the one the run recorded).
         out: state folder to write (default RUN/updates/NN_frame_FFFFFF).
         config: association, change detection and pose settings (paper values, Sec. IV).
-        embedder: mask embedder for S_semantic: "auto" = the learned imagenet-minilm when the
-            language extra is installed, else the run's embedder; or a registry name. The
+        embedder: mask embedder for S_semantic: "run" (default) = the run's own embedder;
+            "auto" = the learned imagenet-minilm when the language extra is installed (measured
+            no better on the evaluation pairs, docs/update.md); or a registry name. The
             stored instances are re-embedded from the run's views when needed (cached in
             RUN/query_cache.npz); the name is recorded in update.json and state.json.
         overlay: also write overlay.png (before | after on the new image).

@@ -52,6 +52,7 @@ def test_reembedding_follows_the_run_ids_and_is_cached(run_dir, tmp_path):
 def test_auto_and_errors(run_dir, monkeypatch):
     st = state_from_run(run_dir)
     assert embed.resolve_embedder("appearance-hsv", st) == "appearance-hsv"
+    assert embed.resolve_embedder("run", st) == st.embedder  # the command's default
     monkeypatch.setattr(embed, "learned_available", lambda: False)
     assert embed.resolve_embedder("auto", st) == st.embedder
     monkeypatch.setattr(embed, "learned_available", lambda: True)
