@@ -160,8 +160,15 @@ class ViewerData:
         return v.masks.masks[v.masks.index_of(int(n.mask_id[i]))]
 
     def node_points(self, i: int) -> np.ndarray:
-        """(N,) bool: points whose super-voxel the node occupies (o_i(k) > 0)."""
-        return self.trace.occupancy[int(i)][self.seg.sv_labels] > 0
+        """(N,) bool: points of the super-voxels the node's mask covers at least the vote's
+        ``min_coverage`` of (o_i(k) >= it, the same guard the Replay highlight uses), so a leaf
+        whose mask bleeds a few pixels onto the table does not light up the whole table. Falls
+        back to every occupied super-voxel (o_i(k) > 0) when none passes (a sliver of a mask)."""
+        occ = self.trace.occupancy[int(i)]
+        on = occ >= max(float(self.trace.config.vote.min_coverage), 1e-6)
+        if not on.any():
+            on = occ > 0
+        return on[self.seg.sv_labels]
 
     def neighbours(self, i: int) -> list[tuple[int, float, float]]:
         """Leaf-graph neighbours of node i as (node, S_spatial, S_semantic), by S_spatial then S_semantic, descending."""

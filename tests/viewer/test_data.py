@@ -92,3 +92,18 @@ def test_text_scores_rank_instances_by_their_masks(tiny_data):
     cos = tiny_data.trace.embeddings @ emb
     k = int(np.argmax(s))
     assert np.isclose(s[k], cos[list(tiny_data.seg.instance_nodes(k))].max(), atol=1e-5)
+
+
+def test_node_highlight_ignores_super_voxels_the_mask_barely_touches(tiny_data):
+    # A leaf whose mask bleeds a few pixels onto the table must not light up the table: only
+    # super-voxels it covers at least the vote's min_coverage of are highlighted.
+    d = tiny_data
+    occ = d.trace.occupancy
+    thr = d.trace.config.vote.min_coverage
+    rows = [i for i in range(len(occ)) if (occ[i] >= thr).any() and ((occ[i] > 0) & (occ[i] < thr)).any()]
+    assert rows, "the tiny scene should have a mask that only grazes some super-voxel"
+    i = rows[0]
+    pts = d.node_points(i)
+    grazed = (occ[i] > 0) & (occ[i] < thr)
+    assert not pts[grazed[d.seg.sv_labels]].any()
+    assert pts[(occ[i] >= thr)[d.seg.sv_labels]].all()
