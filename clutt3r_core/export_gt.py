@@ -98,41 +98,16 @@ def project_labels(points: np.ndarray, labels: np.ndarray, camera, depth: np.nda
     if depth is not None:
         from scipy.spatial import cKDTree
 
-        d = np.asarray(depth, np.float64)
-        v, u = np.nonzero(np.isfinite(d) & (d > 0))
-        z = d[v, u]
-        K = camera.K
-        xc = np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], 1)
-        T = np.asarray(camera.T_world_camera, np.float64)
-        xw = xc @ T[:3, :3].T + T[:3, 3]
+        xw, flat = camera.backproject(np.asarray(depth, np.float64))
+        v, u = np.divmod(flat, W)
         dist, idx = cKDTree(pts).query(xw, k=1, distance_upper_bound=config.max_gap_m, workers=1)
         ok = np.isfinite(dist)
         out[v[ok], u[ok]] = lab[idx[ok]]
         return out
-    # no depth: a z-buffer over the points themselves
-    T = np.linalg.inv(np.asarray(camera.T_world_camera, np.float64))
-    pc = pts @ T[:3, :3].T + T[:3, 3]
-    front = pc[:, 2] > 1e-6
-    pc, lab = pc[front], lab[front]
-    K = camera.K
-    u = np.round(K[0, 0] * pc[:, 0] / pc[:, 2] + K[0, 2]).astype(np.int64)
-    v = np.round(K[1, 1] * pc[:, 1] / pc[:, 2] + K[1, 2]).astype(np.int64)
-    r = np.maximum((K[0, 0] * config.splat_voxel_m / pc[:, 2] / 2).astype(np.int64), 0)
-    zbuf = np.full((H, W), np.inf)
-    order = np.argsort(-pc[:, 2])  # far to near: nearer points overwrite
-    rmax = int(r.max(initial=0))
-    for dy in range(-rmax, rmax + 1):
-        for dx in range(-rmax, rmax + 1):
-            sel = order[(np.abs(dx) <= r[order]) & (np.abs(dy) <= r[order])]
-            uu, vv = u[sel] + dx, v[sel] + dy
-            inb = (uu >= 0) & (uu < W) & (vv >= 0) & (vv < H)
-            sel, uu, vv = sel[inb], uu[inb], vv[inb]
-            closer = pc[sel, 2] < zbuf[vv, uu]
-            sel, uu, vv = sel[closer], uu[closer], vv[closer]
-            # duplicates at one pixel: numpy keeps the last write, and sel is far-to-near
-            zbuf[vv, uu] = pc[sel, 2]
-            out[vv, uu] = lab[sel]
-    return out
+    # no depth: the update stage's splat z-buffer over the points themselves
+    from clutt3r_core.update.project import render_labels
+
+    return render_labels(pts, lab, camera, config.splat_voxel_m)[0]
 
 
 def corrected_ground_truth(points: np.ndarray, labels: CorrectedLabels, views=(),
