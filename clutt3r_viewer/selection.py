@@ -56,12 +56,9 @@ class ScreenCamera:
     @staticmethod
     def from_viser(cam) -> "ScreenCamera":
         """From a ``viser.CameraHandle`` (``client.camera``)."""
-        w, x, y, z = (float(c) for c in cam.wxyz)
-        R = np.array([
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ])
+        import viser.transforms as vtf
+
+        R = vtf.SO3(np.asarray(cam.wxyz, np.float64)).as_matrix()
         return ScreenCamera(np.asarray(cam.position), R, float(cam.fov), float(cam.aspect))
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
