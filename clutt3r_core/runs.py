@@ -40,6 +40,7 @@ __all__ = [
     "load_run",
     "read_run_info",
     "run_scene_folder",
+    "ply_bytes",
 ]
 
 RUN_FILES: tuple[str, ...] = ("instances.npz", "cloud.npz", "trace/trace.json", "trace/trace.npz")
@@ -110,7 +111,7 @@ def save_run(seg, out: str | Path, scene_root: str | Path | None = None) -> Path
     atomic_write_npz(
         out / "cloud.npz", normals=seg.normals.astype(np.float32), counts=seg.counts.astype(np.int32),
         sv_labels=seg.sv_labels.astype(np.int32), sv_support=seg.sv_support.astype(bool))
-    atomic_write_bytes(out / "instances.ply", _ply_bytes(seg.points, seg.colors, seg.instance))
+    atomic_write_bytes(out / "instances.ply", ply_bytes(seg.points, seg.colors, seg.instance))
     atomic_write_bytes(out / "instance_tree.json", json.dumps(instance_tree_json(seg), indent=1).encode())
     save_trace(seg.trace, out / "trace")
     _write_run_masks(seg.masks, out / "instance_masks")
@@ -225,7 +226,8 @@ def run_scene_folder(run_dir: str | Path) -> Path | None:
     return p
 
 
-def _ply_bytes(points: np.ndarray, colors: np.ndarray, instance: np.ndarray) -> bytes:
+def ply_bytes(points: np.ndarray, colors: np.ndarray, instance: np.ndarray) -> bytes:
+    """Binary little-endian PLY of (N, 3) points, (N, 3) uint8 colours and an int instance per vertex."""
     n = len(points)
     header = (
         "ply\nformat binary_little_endian 1.0\n"

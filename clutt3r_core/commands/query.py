@@ -28,7 +28,7 @@ def write_target(run: Path, seg, res) -> Path | None:
 
     from clutt3r_core.io.images import atomic_write_bytes, atomic_write_npz
     from clutt3r_core.query import target_points
-    from clutt3r_core.runs import _ply_bytes
+    from clutt3r_core.runs import ply_bytes
 
     npz, ply = run / "query_target.npz", run / "query_target.ply"
     if res.target is None:
@@ -38,7 +38,7 @@ def write_target(run: Path, seg, res) -> Path | None:
     pts, cols = target_points(seg, res.target)
     atomic_write_npz(npz, points=pts, colors=cols, instance=np.int32(res.target), query=np.array(res.query),
                      confident=np.bool_(res.confident))
-    atomic_write_bytes(ply, _ply_bytes(pts, cols, np.full(len(pts), res.target, np.int32)))
+    atomic_write_bytes(ply, ply_bytes(pts, cols, np.full(len(pts), res.target, np.int32)))
     return npz
 
 
