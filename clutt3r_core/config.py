@@ -27,6 +27,11 @@ from clutt3r_core.supervoxels import SuperVoxelConfig
 __all__ = [
     "SegmentConfig",
     "PRESETS",
+    "Addition",
+    "ADDITIONS",
+    "with_fields",
+    "ours_without",
+    "paper_with",
     "PresetName",
     "config_to_json",
     "config_from_json",
@@ -49,17 +54,106 @@ class SegmentConfig:
     background_fraction: float = 0.5
     """Ours: a mask whose 3D points lie more than this fraction on support super-voxels
     (table, tray) is background: it stays in its tree but never joins a group
-    (``segmentation.background.background_masks``)."""
+    (``segmentation.evidence.background_masks``)."""
+    exclude_background_masks: bool = True
+    """Ours (findings point 4): flag background masks (``background_fraction``, or no 3D point
+    at all) and keep them out of the leaf graph, the groups and substitution. False = the
+    paper's text: every leaf is a candidate."""
+
+
+# ------------------------------------------------------------------ our additions and the paper
+
+
+@dataclass(frozen=True)
+class Addition:
+    """One rule of ours over the paper's text (Sec. III, IV), as the config fields that switch it.
+
+    ``fields``: (dotted field path in ``SegmentConfig``, value in ``ours``, value in ``paper``).
+    ``ours`` = ``SegmentConfig()``; ``paper`` = every addition at its paper value. The
+    leave-one-out ablation (``evaluation.methods``) sets one addition's fields to the paper's
+    value in ``ours`` (``ours_without``) or to ours in ``paper`` (``paper_with``).
+    """
+
+    key: str
+    """Short name (benchmark method names: ``ours-no-<key>``, ``paper-with-<key>``)."""
+    what: str
+    """One line: what the rule does."""
+    fields: tuple[tuple[str, Any, Any], ...]
+
+
+ADDITIONS: tuple[Addition, ...] = (
+    Addition("support", "mark support super-voxels (table, tray floor, walls): RANSAC planes + extent",
+             (("supervoxels.support_removal", True, False),)),
+    Addition("support-not-in-spatial", "S_spatial (eq. 2) ignores support super-voxels",
+             (("grouping.spatial_excludes_support", True, False),)),
+    Addition("support-unlabelled", "the vote never labels support super-voxels",
+             (("vote.label_support", False, True),)),
+    Addition("background-masks", "masks mostly on support (or without 3D points) are never grouped",
+             (("exclude_background_masks", True, False),)),
+    Addition("visible-occupancy", "o_i(k) over the part of super-voxel k that mask i's view sees",
+             (("occupancy.normalise", "visible", "all"),)),
+    Addition("one-mask-per-view", "a group holds at most one mask per view",
+             (("grouping.one_mask_per_view", True, False),)),
+    Addition("overlap-gate", "stage 2 only merges groups that share a super-voxel (mean S_spatial > 0)",
+             (("grouping.semantic_needs_overlap", True, False),)),
+    Addition("coverage-guard", "a super-voxel goes to its winner only if one of its masks covers >= 50 % of it",
+             (("vote.min_coverage", 0.5, 0.0),)),
+    Addition("abs-normal-dot", "|<n_i, n_j>| instead of <n_i, n_j> in eq. 1",
+             (("supervoxels.absolute_normal_dot", True, False),)),
+    Addition("containment-tolerance", "a mask is contained in another when >= 85 % of its pixels are (not 100 %)",
+             (("trees.tau_contain", 0.85, 1.0),)),
+    Addition("min-mask-area", "masks under 0.01 % of the image are dropped before the trees",
+             (("trees.min_area_px", 0, 1),)),
+    Addition("min-instance-points", "instances under 30 raw points are dropped",
+             (("vote.min_instance_points", 30, 0),)),
+    Addition("pixel-stride", "1080p views are sampled every 3rd pixel before voxelisation (none at 640x480)",
+             (("pointcloud.pixel_stride", 0, 1),)),
+)
+"""Every rule of ours over the paper's explicit text that changes a result, with its switch.
+Choices the text leaves open (and that both presets share) are listed in docs/paper_choices.md."""
+
+
+def with_fields(cfg: SegmentConfig, values: dict[str, Any]) -> SegmentConfig:
+    """``cfg`` with the fields named by dotted paths (``"vote.min_coverage"``) replaced."""
+    for path, value in values.items():
+        head, _, rest = path.partition(".")
+        if not hasattr(cfg, head):
+            raise KeyError(f"SegmentConfig has no field '{path}'")
+        if rest:
+            sub = getattr(cfg, head)
+            if not hasattr(sub, rest):
+                raise KeyError(f"SegmentConfig has no field '{path}'")
+            cfg = dataclasses.replace(cfg, **{head: dataclasses.replace(sub, **{rest: value})})
+        else:
+            cfg = dataclasses.replace(cfg, **{head: value})
+    return cfg
+
+
+def _addition(key: str) -> Addition:
+    for a in ADDITIONS:
+        if a.key == key:
+            return a
+    raise KeyError(f"no addition '{key}'; known: {', '.join(a.key for a in ADDITIONS)}")
+
+
+def ours_without(key: str) -> SegmentConfig:
+    """``ours`` with one addition switched off (set to the paper's value)."""
+    return with_fields(SegmentConfig(), {f: paper for f, _, paper in _addition(key).fields})
+
+
+def paper_with(key: str) -> SegmentConfig:
+    """``paper`` with one addition switched on (set to ours)."""
+    return with_fields(_paper_literal(), {f: ours for f, ours, _ in _addition(key).fields})
 
 
 def _paper_literal() -> SegmentConfig:
-    # The paper's text without our additions: occupancy over all voxels of a super-voxel,
-    # no coverage guard, no support handling in the vote, no overlap gate on stage 2.
-    return SegmentConfig(
-        occupancy=OccupancyConfig(normalise="all"),
-        grouping=GroupingConfig(semantic_needs_overlap=False),
-        vote=VoteConfig(min_coverage=0.0, label_support=True),
-    )
+    """The paper's text wherever it is explicit: ``ours`` with every ``ADDITIONS`` entry off.
+
+    The paper's own values (Sec. IV: 5 mm voxels, m = 3, alpha, beta, tau_merge, tau_spat,
+    tau_sem; Sec. III-B.3: one substitution round) are the defaults of both presets; what the
+    text leaves open is shared with ``ours`` and listed in docs/paper_choices.md.
+    """
+    return with_fields(SegmentConfig(), {f: paper for a in ADDITIONS for f, _, paper in a.fields})
 
 
 PresetName = Literal["default", "paper", "no-spatial", "no-substitution"]
@@ -81,10 +175,35 @@ def config_to_json(cfg: Any) -> dict:
     return dataclasses.asdict(cfg)
 
 
+ADDED_AFTER_V1: dict[str, Any] = {
+    "exclude_background_masks": True,
+    "grouping.spatial_excludes_support": True,
+    "grouping.substitute_stranded_parents": False,
+    "vote.revote_dropped": False,
+}
+"""Fields added after trace version 1, each with the value that reproduces the code that wrote
+such a trace (issue 13: the first two only made existing rules switchable; the last two are
+fixes that the old code did not have). Only these may be missing from a stored config."""
+
+
 def config_from_json(data: Any, file: str | Path) -> SegmentConfig:
     """The ``SegmentConfig`` written by ``config_to_json``; ``SceneFileError(file, ...)`` naming the
-    offending field when ``data`` does not match the current fields exactly."""
+    offending field when ``data`` does not match the current fields exactly (except the fields
+    of ``ADDED_AFTER_V1``, which a config written before them gets as the old code behaved)."""
+    if isinstance(data, dict):
+        data = _fill_added(data)
     return dataclass_from_json(SegmentConfig, data, file, "config")
+
+
+def _fill_added(data: dict) -> dict:
+    out = dict(data)
+    for path, value in ADDED_AFTER_V1.items():
+        head, _, rest = path.partition(".")
+        if not rest:
+            out.setdefault(head, value)
+        elif isinstance(out.get(head), dict) and rest not in out[head]:
+            out[head] = {**out[head], rest: value}
+    return out
 
 
 T = TypeVar("T")

@@ -8,7 +8,7 @@ diverged, and their final instances. ``explain_supervoxel(run, k)`` gives the su
 votes per group (Sec. III-B.4), the winner's coverage, and the rule that decided.
 
 Everything is read from the trace (``segmentation/trace.py``); the only arithmetic is the
-mean linkage of two groups (sum of leaf-pair similarities / (|A| |B|), exactly as the
+mean linkage of two groups (mean of the leaf-pair similarities that have an edge, exactly as the
 grouping computes it) on the recorded leaf graph. Traces written before stage stops and
 vote reasons were recorded still load: their explanations say "not recorded in this run".
 """
@@ -226,11 +226,12 @@ def _at(h: list[GroupAt] | tuple[GroupAt, ...], step: int) -> tuple[int, ...]:
 
 
 def _linkage(trace: Trace, ga: tuple[int, ...], gb: tuple[int, ...]) -> tuple[float, float]:
-    """Mean linkage of two groups, as ``grouping._Groups.mean`` (no edge counts as 0)."""
+    """Mean linkage of two groups, as ``grouping._Groups.mean``: over the member pairs that have
+    a leaf edge (same-view pairs, NaN in the leaf graph, are left out; 0 when no pair has one)."""
     if not ga or not gb:
         return float("nan"), float("nan")
     ix = np.ix_(list(ga), list(gb))
-    n = len(ga) * len(gb)
+    n = max(int(np.isfinite(trace.s_spatial[ix]).sum()), 1)
     sp = float(np.nansum(trace.s_spatial[ix].astype(np.float64)) / n)
     se = float(np.nansum(trace.s_semantic[ix].astype(np.float64)) / n)
     return sp, se

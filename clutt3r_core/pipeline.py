@@ -166,7 +166,8 @@ def segment(
         for vi, (v, masks) in enumerate(zip(views, nodes_masks)):
             hits = mask_voxel_hits(cloud, vi, masks)  # once per view: occupancy and background
             occ_parts.append(mask_occupancy(cloud, sv, vi, masks, config.occupancy, hits=hits))
-            bg_parts.append(background_masks(hits, support_voxel, config.background_fraction))
+            bg_parts.append(background_masks(hits, support_voxel, config.background_fraction)
+                            if config.exclude_background_masks else np.zeros(len(masks), bool))
         occupancy = np.concatenate(occ_parts, axis=0) if occ_parts else np.zeros((0, sv.num), np.float32)
         background = np.concatenate(bg_parts) if bg_parts else np.zeros(0, bool)
         nodes = NodeTable(nodes.frame, nodes.view, nodes.mask_id, nodes.parent, nodes.is_leaf, background)
@@ -178,7 +179,8 @@ def segment(
 
     with timer("leaf_graph"):
         # support super-voxels carry no evidence of object identity (findings point 4)
-        occ_obj = np.where(sv.support[None, :], 0.0, occupancy).astype(np.float32)
+        occ_obj = (np.where(sv.support[None, :], 0.0, occupancy).astype(np.float32)
+                   if config.grouping.spatial_excludes_support else occupancy)
         s_spat = spatial_similarity(occ_obj, sv.weights)
         s_sem = semantic_similarity(embeddings)
         no_edge = nodes.view[:, None] == nodes.view[None, :]

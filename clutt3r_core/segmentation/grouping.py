@@ -45,6 +45,7 @@ __all__ = [
     "semantic_similarity",
     "group_nodes",
     "substitute_residuals",
+    "stranded_parents",
     "run_grouping",
     "StageStop",
     "BlockedPairs",
@@ -88,6 +89,19 @@ class GroupingConfig:
     same-category duplicates"; without this gate stage 2 joins look-alike objects that never
     touch (measured: every wrong stage-2 merge on generated hard scenes had S_spatial = 0 exactly,
     every right one >= 0.17). False = the paper's text."""
+    spatial_excludes_support: bool = True
+    """Ours (findings point 4): S_spatial (eq. 2) is computed with the support super-voxels'
+    occupancy set to 0 (table and tray carry no evidence of object identity; two masks that
+    both bleed onto the table must not look alike for it). Read by the pipeline when it builds
+    the leaf graph; no effect when nothing is marked support. False = the paper's eq. 2 over
+    every super-voxel."""
+    substitute_stranded_parents: bool = True
+    """Ours (issue 13, fix of a fragile spot): with background masks excluded, a non-background
+    mask whose every descendant is background (e.g. an object mask whose only child is a blob
+    on the table or a part without depth) is on no candidate's path and would never be grouped
+    or substituted. True substitutes it in the first substitution round (``Substitution`` with
+    no replaced node), so it is regrouped like any substituted parent. Needs ``substitution``.
+    No effect without background masks. False = the behaviour before the fix (trace v1)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -243,21 +257,28 @@ class _Groups:
     def valid(self, one_per_view: bool) -> np.ndarray:
         g = len(self.members)
         ok = ~np.eye(g, dtype=bool)
-        shared = self.shared_views()
         if one_per_view:
-            ok &= ~shared
+            ok &= ~self.shared_views()
         else:
-            # without the rule, two groups that are each one mask of the same view still have no edge (phi)
-            single = self.size == 1
-            ok &= ~(shared & single[:, None] & single[None, :])
+            # Algorithm 1's rewiring: w = u + v gets an edge to every neighbour of u or v, so two
+            # groups are adjacent iff some member pair has a leaf edge (phi: not within one view)
+            ok &= self.count > 0
         return np.triu(ok, 1)
 
     def shared_views(self) -> np.ndarray:
         vi = self.views.astype(np.int32)
         return (vi @ vi.T) > 0
 
-    def mean(self, which: int, defined_only: bool = False) -> np.ndarray:
-        """Mean linkage over all member pairs, or (defined_only) over the pairs that have an edge."""
+    def mean(self, which: int, defined_only: bool = True) -> np.ndarray:
+        """Mean linkage over the member pairs that have a leaf edge (0 where none has).
+
+        Pairs without an edge (two masks of one view: NaN in the leaf graph) are left out of
+        the mean, not counted as 0: with ``one_mask_per_view`` off, a group that holds two
+        masks of a view would otherwise see its similarity to that view's masks diluted
+        (issue 13). With the rule on, groups never share a view, every member pair has an
+        edge and the two means are equal. ``defined_only=False`` divides by all pairs (the
+        behaviour before the fix; kept for the tests that show the difference).
+        """
         s = self.sum_spat if which == STAGE_SPATIAL else self.sum_sem
         if defined_only:
             return np.divide(s, self.count, out=np.zeros_like(s), where=self.count > 0)
@@ -342,8 +363,23 @@ def _record(state: _Groups, stage: int, tau: float, round_: int, n_steps: int,
     return stop_record(first, STAGE_NAMES[stage], tau, round_, n_steps, mean, view_ok, valid)
 
 
+def stranded_parents(nodes: NodeTable) -> np.ndarray:
+    """Node indices of the non-background masks all of whose descendants are background.
+
+    Such a mask (an object whose only child is a blob on the table, or a part without depth)
+    lies on no candidate's root-to-leaf path: its leaves never group, so it would never be
+    substituted either (``GroupingConfig.substitute_stranded_parents``).
+    """
+    bg = np.asarray(nodes.background, bool)
+    # for every node, the non-background nodes of its subtree (itself included when not background)
+    below = subtree_leaves(nodes.parent, ~bg)
+    return np.array([i for i in range(len(nodes)) if not bg[i] and not nodes.is_leaf[i] and len(below[i]) == 1],
+                    np.int64)
+
+
 def substitute_residuals(
-    groups: list[list[int]], nodes: NodeTable, round_: int, notes: "list[ResidualNotes] | None" = None
+    groups: list[list[int]], nodes: NodeTable, round_: int, notes: "list[ResidualNotes] | None" = None,
+    stranded: bool = False,
 ) -> tuple[list[list[int]], list[Substitution]]:
     """Residual-node parent substitution (Sec. III-B.3).
 
@@ -352,6 +388,8 @@ def substitute_residuals(
     segment stays on each root-to-leaf path); all of those residual leaves make way
     for the one parent node. Background parents are never substituted in. With ``notes`` (a
     list), appends why each residual that stays was not substituted (record only).
+    With ``stranded``, ``stranded_parents`` not yet in a group are substituted too (replacing
+    nothing: their leaves are background and were never grouped).
     """
     residual = {g[0] for g in groups if len(g) == 1}
     desc = nodes.descendant_leaves()
@@ -370,6 +408,14 @@ def substitute_residuals(
             subs.append(Substitution(round=round_, parent=p, replaced=gone))
             used_parents.add(p)
             replaced.update(gone)
+    if stranded:
+        grouped = {x for g in groups for x in g}
+        for p in stranded_parents(nodes):
+            # one node per root-to-leaf path: not when p or an ancestor of p is already in use
+            taken = grouped | used_parents
+            if not any(_in_subtree(int(p), t, nodes) for t in taken):
+                subs.append(Substitution(round=round_, parent=int(p), replaced=()))
+                used_parents.add(int(p))
     if notes is not None:
         notes.append(_residual_notes(residual, replaced, used_parents, desc, nodes, round_))
     if not subs:
@@ -440,7 +486,8 @@ def run_grouping(nodes: NodeTable, sim: SimilarityGraph, n_views: int, cfg: Grou
     subs_all: list[Substitution] = []
     if cfg.substitution:
         for rnd in range(1, cfg.substitution_rounds + 1):
-            groups, subs = substitute_residuals(groups, nodes, rnd, notes=notes)
+            groups, subs = substitute_residuals(groups, nodes, rnd, notes=notes,
+                                                stranded=cfg.substitute_stranded_parents)
             if not subs:
                 break
             events += [("substitution", len(subs_all) + k) for k in range(len(subs))]

@@ -165,7 +165,9 @@ def save_trace(trace: Trace, folder: str | Path) -> Path:
         "frames": trace.frames,
         "node_frame": n.frame, "node_view": n.view, "node_mask_id": n.mask_id, "node_parent": n.parent,
         "node_is_leaf": n.is_leaf, "node_background": n.background,
-        "embeddings": trace.embeddings.astype(np.float16),
+        # float32, as used for S_semantic (issue 13: float16 drifted by up to ~1e-3 from the values
+        # the grouping saw, so an explanation recomputed from the trace could disagree with it)
+        "embeddings": trace.embeddings.astype(np.float32),
         "occ_shape": np.asarray(occ.shape, np.int64),
         "occ_rows": rows.astype(np.int32), "occ_cols": cols.astype(np.int32),
         "occ_vals": occ[rows, cols].astype(np.float32),
@@ -176,7 +178,7 @@ def save_trace(trace: Trace, folder: str | Path) -> Path:
     }
     # explanations of decisions not taken (absent in older traces; load_trace leaves them None)
     if v.sv_reason is not None:
-        arrays.update(sv_top_group=v.sv_top_group, sv_top_vote=v.sv_top_vote.astype(np.float16),
+        arrays.update(sv_top_group=v.sv_top_group, sv_top_vote=v.sv_top_vote.astype(np.float32),
                       sv_reason=v.sv_reason, group_points=v.group_points)
     g = trace.grouping
     if g.blocked is not None:

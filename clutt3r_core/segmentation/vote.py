@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from clutt3r_core.errors import SceneError
+
 __all__ = ["VoteConfig", "VoteResult", "supervoxel_vote", "renumber_by_score", "VOTE_REASONS"]
 
 VOTE_REASONS = ("labelled", "no_vote", "support", "coverage", "group_dropped")
@@ -40,6 +42,20 @@ class VoteConfig:
     """Instances whose voxels hold fewer raw points are dropped (ours: specks are not graspable objects)."""
     label_support: bool = False
     """Ours: False never hands table / tray super-voxels to an object."""
+    revote_dropped: bool = True
+    """Ours (issue 13, fix of a fragile spot): a super-voxel won by a group that is then dropped
+    (``min_group_size`` / ``min_instance_points``) goes to the best surviving group that voted
+    for it (subject to ``min_coverage``) instead of staying unlabelled. Groups under
+    ``min_instance_points`` are dropped all at once, then the vote is repeated without them
+    (surviving groups only gain, so one repeat settles it). False = the behaviour before the
+    fix (trace v1). No effect when nothing is dropped."""
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.min_coverage <= 1.0:
+            raise SceneError(f"VoteConfig.min_coverage must be in [0, 1], got {self.min_coverage}")
+        if self.min_group_size < 1 or self.min_instance_points < 0:
+            raise SceneError("VoteConfig needs min_group_size >= 1 and min_instance_points >= 0, got "
+                             f"{self.min_group_size}, {self.min_instance_points}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -91,6 +107,13 @@ def renumber_by_score(label: np.ndarray, score: np.ndarray, keep: np.ndarray) ->
     remap = np.full(max(len(keep), 1), -1, np.int32)
     remap[alive] = np.arange(len(alive), dtype=np.int32)
     return np.where(label >= 0, remap[np.maximum(label, 0)], -1).astype(np.int32), alive
+
+
+def _won_points(chosen: np.ndarray, sv_counts: np.ndarray, g: int) -> np.ndarray:
+    """(G,) float64 raw points in the super-voxels each group took (``chosen``: (K,) group or -1)."""
+    if not g:
+        return np.zeros(0)
+    return np.bincount(chosen[chosen >= 0], weights=sv_counts[chosen >= 0], minlength=g)
 
 
 def supervoxel_vote(
@@ -146,8 +169,27 @@ def supervoxel_vote(
             sub = s[np.ix_(m, m)]
             internal = float(sub[np.triu_indices(len(m), 1)].mean())
         conf[i] = len(m) / max(n_views, 1) + 1e-3 * internal
-    points = np.bincount(chosen[chosen >= 0], weights=sv_counts[chosen >= 0], minlength=g) if g else np.zeros(0)
-    sv_label, alive = renumber_by_score(chosen, conf, eligible & (points >= cfg.min_instance_points))
+    points = _won_points(chosen, sv_counts, g)
+    keep = eligible & (points >= cfg.min_instance_points)
+    if cfg.revote_dropped and g:
+        # super-voxels of dropped groups go to the best surviving group (runner-up), same rules;
+        # the recorded winner / vote / coverage stay those of the first vote (explanations)
+        while True:
+            live = np.where(keep[:, None], votes, 0.0)
+            order2 = np.argsort(-live, axis=0, kind="stable")[0]
+            v2 = live[order2, np.arange(k)]
+            c2 = best_cov[order2, np.arange(k)]
+            take2 = (v2 > 0) & (c2 >= cfg.min_coverage)
+            if not cfg.label_support:
+                take2 &= ~support
+            chosen = np.where(take2, order2, -1)
+            p2 = _won_points(chosen, sv_counts, g)
+            drop = keep & (p2 < cfg.min_instance_points)
+            points = np.where(keep, p2, points)  # a dropped group keeps the points it was dropped with
+            if not drop.any():
+                break
+            keep &= ~drop
+    sv_label, alive = renumber_by_score(chosen, conf, keep)
     # record only: the top three of every group's vote and why each super-voxel ended as it did
     top = np.argsort(-raw, axis=0, kind="stable")[:3] if g else np.zeros((0, k), np.int64)
     top_vote = np.take_along_axis(raw, top, axis=0) if g else np.zeros((0, k), np.float32)

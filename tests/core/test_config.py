@@ -10,7 +10,17 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from clutt3r_core.config import PRESETS, SegmentConfig, config_from_json, config_to_json
+from clutt3r_core.config import (
+    ADDED_AFTER_V1,
+    ADDITIONS,
+    PRESETS,
+    SegmentConfig,
+    config_from_json,
+    config_to_json,
+    ours_without,
+    paper_with,
+    with_fields,
+)
 from clutt3r_core.errors import SceneFileError
 from clutt3r_core.occupancy import OccupancyConfig
 from clutt3r_core.pointcloud import PointCloudConfig
@@ -74,7 +84,10 @@ def test_a_version_1_trace_config_still_loads(tmp_path):
     assert meta["version"] == 1
     meta["config"] = json.loads(_V1_CONFIG.read_text())
     (folder / "trace.json").write_text(json.dumps(meta))
-    assert load_trace(folder).config == SegmentConfig()
+    # the fields added since then take the values that reproduce the code that wrote it
+    old = with_fields(SegmentConfig(), ADDED_AFTER_V1)
+    assert load_trace(folder).config == old
+    assert old.grouping.substitute_stranded_parents is False and old.vote.revote_dropped is False
 
 
 def _corrupt(tmp_path, edit) -> Path:
