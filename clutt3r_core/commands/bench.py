@@ -19,6 +19,7 @@ def bench_command(
     methods: tuple[Method, ...] = tuple(METHODS),  # type: ignore[assignment]
     view_sweep: bool = True,
     noise_sweep: bool = True,
+    ablation: bool = False,
     sweep_per_difficulty: int = 2,
     masks: Literal["scene", "builtin"] = "scene",
     width: int = 0,
@@ -45,6 +46,9 @@ def bench_command(
         methods: methods to run on the main setting (8 views, grounded-sam-like masks).
         view_sweep: also run ours and the baselines with 4 and 6 of the 8 views (Table IV).
         noise_sweep: also run ours and the baselines on clean and harsh mask candidates.
+        ablation: also run the leave-one-out ablation of our additions over the paper on every
+            scene of the main setting: ours with each one off, the paper preset with each one on
+            (``evaluation.methods.ABLATION_METHODS``; docs/paper_choices.md).
         sweep_per_difficulty: scenes per difficulty used by the sweeps (the first ones).
         masks: mask candidates of every job: scene = the scene's own (generated scenes: the
             mask-noise model's); builtin = the builtin RGB-D generator's, made per job (no noise
@@ -93,6 +97,10 @@ def bench_command(
         jobs += plan_jobs(sweep_scenes, sweep_methods, [Setting(4, main.mask_noise, masks), Setting(6, main.mask_noise, masks)], cache)
     if noise_sweep:
         jobs += plan_jobs(sweep_scenes, sweep_methods, [Setting(8, "clean"), Setting(8, "harsh")], cache)
+    if ablation:
+        from clutt3r_core.evaluation.methods import ABLATION_METHODS
+
+        jobs += plan_jobs(scenes, [m for m in ("ours", "paper") if m not in methods] + list(ABLATION_METHODS), [main], cache)
     executor: Executor = SerialExecutor() if workers <= 1 else ProcessExecutor(workers)
     results = run_benchmark(jobs, executor, progress=progress)
     elapsed = time.perf_counter() - t0

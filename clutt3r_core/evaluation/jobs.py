@@ -16,7 +16,7 @@ from typing import Iterable, Literal
 import numpy as np
 
 from clutt3r_core.errors import SceneError
-from clutt3r_core.evaluation.methods import PRESET_OF
+from clutt3r_core.evaluation.methods import PRESET_OF  # noqa: F401  (importing it registers the ablation methods)
 
 __all__ = [
     "METHODS",
@@ -211,10 +211,11 @@ class JobResult:
 
 
 def _method_config(method: str) -> dict:
-    if method in PRESET_OF:
-        from clutt3r_core.config import PRESETS
+    from clutt3r_core.evaluation.methods import method_config
 
-        return asdict(PRESETS[PRESET_OF[method]])
+    cfg = method_config(method)  # presets and the leave-one-out ablation (methods.ABLATION_METHODS)
+    if cfg is not None:
+        return asdict(cfg)
     if method == "naive":
         from clutt3r_core.baselines.naive import NaiveConfig
 
