@@ -108,6 +108,9 @@ class _Solver:
         self.H, self.W = H, W
         self.diag = float(np.hypot(H, W))
         pts = pb.points.astype(np.float64)
+        self.T_init = np.eye(4) if pb.T_init is None else np.asarray(pb.T_init, np.float64)
+        if pb.T_init is not None:  # optimise a correction of the given start (matrix() composes it)
+            pts = pts @ self.T_init[:3, :3].T + self.T_init[:3, 3]
         self.all_points = pts
         self.c = pts.mean(axis=0)
         rng = np.random.default_rng(0)
@@ -161,7 +164,7 @@ class _Solver:
     def matrix(self, params) -> np.ndarray:
         with self.torch.no_grad():
             R = self.rotation(self.rotvec(params)).numpy()
-            return motion_matrix(R, self.c, params["t"].numpy())
+            return motion_matrix(R, self.c, params["t"].numpy()) @ self.T_init
 
     # -- one evaluation ------------------------------------------------------------------
     def losses(self, params, stage: StageConfig):
@@ -216,6 +219,7 @@ class _Solver:
 
     def iou(self, T: np.ndarray) -> float:
         """IoU of the z-buffered projection of all points at motion T with the target mask."""
+        T = T @ np.linalg.inv(self.T_init)  # T is a full motion of the stored points
         p = self.all_points @ T[:3, :3].T + T[:3, 3]
         sp = splat(p, self.pb.camera, self.pb.voxel_size)
         if not (sp.h and sp.w):
@@ -262,13 +266,13 @@ class _Solver:
     def run(self) -> PoseResult:
         cfg = self.cfg
         iou_before = self.iou(np.eye(4))
-        t0 = initial_translation(self.pb, self.c)
+        t0 = initial_translation(self.pb, self.c) if self.pb.T_init is None else np.zeros(3)
         best = None
-        for yaw in cfg.yaw_starts_deg:
+        for yaw in (cfg.yaw_starts_deg if self.pb.T_init is None else (0.0,)):
             params, opt = self.new_params(np.deg2rad(yaw), t0)
             log: list = []
             self.steps(params, opt, cfg.coarse, 0, min(cfg.probe_iterations, cfg.coarse.iterations), log, decay=False,
-                       lazy_iou=len(cfg.yaw_starts_deg) > 1)
+                       lazy_iou=True)
             with self.torch.no_grad():
                 score = float(self.losses(params, cfg.coarse)[0])
             if best is None or score < best[0]:

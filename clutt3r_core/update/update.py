@@ -22,6 +22,7 @@ import numpy as np
 from clutt3r_core.errors import SceneError
 from clutt3r_core.scene import MaskCandidates, View
 from clutt3r_core.segmentation.trees import build_instance_tree
+from clutt3r_core.update.depth_change import depth_changes, fit_iou, registration_result
 from clutt3r_core.update.associate import Association, Projection, associate, project_instances, unmatched_status
 from clutt3r_core.update.project import mask_iou
 from clutt3r_core.update.state import SceneState
@@ -36,6 +37,8 @@ class UpdateDetails:
 
     association: Association
     projection: Projection
+    depth: object = None
+    """``depth_change.DepthChanges`` when the view had depth and ``ChangeConfig.use_depth``."""
 
 
 def _moved(res, centroid: np.ndarray, iou_before: float, config: UpdateConfig) -> bool:
@@ -117,13 +120,47 @@ def update_scene(
                 iou[k] = v2
     displaced = sorted(k for k, v in iou.items() if v < config.change.tau_iou)
 
+    # with depth (ours, depth_change.py): in place -> static; seen gone -> registered or removed
+    dc = None
+    if config.change.use_depth and view.depth is not None:
+        dc = depth_changes(state, view, config, assoc, status)
+        if details is not None:
+            details.depth = dc
+        displaced = sorted((set(displaced) - dc.in_place - dc.moved) | set(dc.fits))
+
     records: list[InstanceUpdate] = []
-    static_ids = np.array([k for k in present if int(k) not in displaced], np.int32)
+    static_ids = np.array([k for k in present if int(k) not in displaced and (dc is None or int(k) not in dc.moved)],
+                          np.int32)
     occ_proj = project_instances(state.points, state.instance, static_ids, cam, voxel, scale) if displaced else None
     for i, k in enumerate(ids):
         k = int(k)
         mi = int(assoc.mask_index[i])
         mid = int(masks.ids[mi]) if mi >= 0 else -1
+        if dc is not None and k in dc.moved:
+            fit = dc.fits.get(k)
+            if fit is None:  # its old place is seen empty and no mask fits it: grasped
+                new_mask.pop(k, None)
+                records.append(InstanceUpdate(k, "removed", None, None, None, -1, assoc.match[i] or "depth"))
+                continue
+            sel = state.instance == k
+            m_k = masks.masks[fit.mask_index]
+            ib = mask_iou(proj.label == k, m_k)  # the paper's IoU before, for the record
+            T, res = fit.registration.T_world, registration_result(fit.registration, state.points[sel], cam, voxel,
+                                                                   occ_proj.depth, m_k, ib)
+            if config.pose.refine_registration:
+                res = optimizer.optimize(PoseProblem(
+                    instance=k, points=state.points[sel], colors=state.colors[sel], camera=cam, rgb=view.rgb,
+                    mask=m_k, occluder_depth=occ_proj.depth, depth=view.depth, voxel_size=voxel, T_init=T))
+                T = res.T_world
+            ia = fit_iou(state.points[sel], T, cam, voxel, occ_proj.depth, m_k)
+            new_mask[k] = m_k
+            records.append(InstanceUpdate(k, "displaced", ib, ia, T, int(masks.ids[fit.mask_index]),
+                                          "depth-registration", pose=res))
+            continue
+        if dc is not None and k in dc.in_place:
+            v = iou.get(k)
+            records.append(InstanceUpdate(k, "static", v, v, None, mid, assoc.match[i] or "present-depth"))
+            continue
         if k in status:  # unmatched: removed, occluded, or present without a mask of its own (static)
             records.append(InstanceUpdate(k, status[k], None, None, None, mid, assoc.match[i]))
         elif k not in displaced:
@@ -144,7 +181,9 @@ def update_scene(
             else:
                 records.append(InstanceUpdate(k, "displaced", iou[k], res.iou_after, res.T_world, mid,
                                               assoc.match[i], pose=res))
-    new = tuple(NewMask(int(masks.ids[mi]), int(np.count_nonzero(masks.masks[mi]))) for mi in assoc.new_masks)
+    taken = set() if dc is None else {f.mask_index for k, f in dc.fits.items()}
+    new = tuple(NewMask(int(masks.ids[mi]), int(np.count_nonzero(masks.masks[mi])))
+                for mi in assoc.new_masks if mi not in taken)
     change = np.zeros((len(ids), *masks.shape), bool)
     for i, k in enumerate(ids):
         if int(k) in new_mask:
