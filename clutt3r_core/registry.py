@@ -11,6 +11,7 @@ mask_generator     ``clutt3r_core.masks.MaskGenerator``                        c
 grasp_planner      ``clutt3r_core.grasping.GraspPlanner``                      grasp poses
 pose_optimizer     ``clutt3r_core.update.PoseOptimizer``                       post-grasp update
 bench_method       ``clutt3r_core.evaluation.methods.BenchMethod``             the benchmark
+bench_executor     ``clutt3r_core.evaluation.executors.Executor``              where bench jobs run
 =================  ==========================================================  ==================
 
 A backend is registered by name with a *factory path* (``"module:attr"``), the import
@@ -60,7 +61,8 @@ __all__ = [
 ]
 
 BackendKind = Literal[
-    "mask_embedder", "text_embedder", "mask_generator", "grasp_planner", "pose_optimizer", "bench_method"
+    "mask_embedder", "text_embedder", "mask_generator", "grasp_planner", "pose_optimizer", "bench_method",
+    "bench_executor",
 ]
 KINDS: tuple[str, ...] = get_args(BackendKind)
 
@@ -71,6 +73,7 @@ PROTOCOLS: dict[str, str] = {
     "grasp_planner": "clutt3r_core.grasping:GraspPlanner",
     "pose_optimizer": "clutt3r_core.update:PoseOptimizer",
     "bench_method": "clutt3r_core.evaluation.methods:BenchMethod",
+    "bench_executor": "clutt3r_core.evaluation.executors:Executor",
 }
 """Where each kind's ``Protocol`` lives (``module:attr``), imported only to check a new backend."""
 
@@ -311,6 +314,15 @@ for _name, _desc in (
     register_backend("bench_method", _name, "clutt3r_core.evaluation.methods:make_method",
                      description=_desc, priority=1 if _name == "ours" else 0, defaults={"name": _name})
 del _name, _desc
+
+# -- bench executors (issue 13): where benchmark jobs run ----------------------------------------
+register_backend("bench_executor", "serial", "clutt3r_core.evaluation.executors:SerialExecutor",
+                 description="every job in this process, in order (tests, debugging)")
+register_backend("bench_executor", "process", "clutt3r_core.evaluation.executors:ProcessExecutor", priority=1,
+                 description="local worker processes (workers=N)")
+register_backend("bench_executor", "dask", "clutt3r_core.evaluation.executors:DaskExecutor",
+                 requires=("distributed",), extra="distributed",
+                 description="a Dask distributed cluster (address=tcp://host:8786), or a local one of workers=N processes")
 
 # -- mask generators (issue 11): register below this line ---------------------------------------
 register_backend(

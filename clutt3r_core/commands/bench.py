@@ -26,6 +26,8 @@ def bench_command(
     height: int = 0,
     seed0: int = 0,
     workers: int = 2,
+    executor: str = "process",
+    address: str | None = None,
     cache: Path = Path(".bench-cache"),
     markdown: Path | None = None,
     notes: Path | None = None,
@@ -56,21 +58,28 @@ def bench_command(
         width: image width of generated scenes (0 = suite default).
         height: image height of generated scenes (0 = suite default).
         seed0: first seed of the generated scenes.
-        workers: worker processes (1 = run serially in this process).
+        workers: worker processes of the process executor or of a local Dask cluster (1 with
+            the process executor = run serially in this process).
+        executor: where jobs run: process (local worker processes), serial (this process),
+            dask (a Dask distributed cluster; needs clutt3r[distributed]), or one a plugin
+            registered (``clutt3r doctor`` lists them). Results are the same on each.
+        address: the Dask scheduler (tcp://host:8786) to send jobs to; without it, --executor
+            dask starts a local cluster of WORKERS processes. Workers need the same clutt3r
+            checkout, and CACHE and any --scenes-dir at the same paths (docs/benchmark.md).
         cache: cache folder for scenes and finished jobs.
         markdown: where to write the Markdown report (default OUT/report.md); plot links are
             relative to it (e.g. --out docs/benchmark --markdown docs/benchmark.md).
         notes: a Markdown file whose text is inserted after the tables (hand-written analysis).
         progress: show progress bars.
     """
+    import contextlib
     import shlex
     import sys
 
+    from clutt3r_core.errors import Clutt3rError
+    from clutt3r_core.evaluation.executors import create_executor
     from clutt3r_core.evaluation.report import write_report
     from clutt3r_core.evaluation.runner import (
-        Executor,
-        ProcessExecutor,
-        SerialExecutor,
         folder_suite,
         plan_jobs,
         run_benchmark,
@@ -80,6 +89,10 @@ def bench_command(
     defaults = {"standard": (6, 640, 480), "quick": (2, 640, 480), "tiny": (1, 160, 120)}[suite]
     n = per_difficulty or defaults[0]
     w, h = width or defaults[1], height or defaults[2]
+    if address is not None and executor != "dask":
+        raise Clutt3rError(f"--address is for --executor dask, not '{executor}'")
+    # absolute: a worker's working directory is not ours (and on a cluster, a shared mount)
+    cache = cache.resolve()
     t0 = time.perf_counter()
     main = Setting(8, "grounded-sam-like", masks)
     if masks != "scene":
@@ -101,8 +114,13 @@ def bench_command(
         from clutt3r_core.evaluation.methods import ABLATION_METHODS
 
         jobs += plan_jobs(scenes, [m for m in ("ours", "paper") if m not in methods] + list(ABLATION_METHODS), [main], cache)
-    executor: Executor = SerialExecutor() if workers <= 1 else ProcessExecutor(workers)
-    results = run_benchmark(jobs, executor, progress=progress)
+    if executor == "process" and workers <= 1:
+        executor = "serial"
+    options = {"process": {"workers": workers}, "dask": {"address": address, "workers": workers}}.get(executor, {})
+    # connects (or starts the local cluster) before any work: a bad address fails here, in one line
+    with contextlib.closing(create_executor(executor, **options)) as ex:
+        results = run_benchmark(jobs, ex, progress=progress)
+        workers = int(getattr(ex, "workers", 1))  # a cluster's: its worker threads
     elapsed = time.perf_counter() - t0
     command = "clutt3r bench " + " ".join(shlex.quote(a) for a in sys.argv[2:]) if len(sys.argv) > 1 and sys.argv[1] == "bench" else ""
     path = write_report(results, out, command=command, elapsed=elapsed, workers=workers, main=main, markdown=markdown,

@@ -65,7 +65,7 @@ def code_version() -> str:
 
     Computed once per process, close to when the modules were imported: the tree may be
     edited while a long run goes on, and a worker keeps running the code it imported."""
-    skip = {_PKG / "evaluation" / n for n in ("runner.py", "report.py", "jobs.py")} | {_PKG / "commands" / "bench.py"}
+    skip = {_PKG / "evaluation" / n for n in ("runner.py", "report.py", "jobs.py", "executors.py")} | {_PKG / "commands" / "bench.py"}
     return _source_hash(p for p in _PKG.rglob("*.py") if p not in skip)
 
 

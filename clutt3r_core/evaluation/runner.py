@@ -13,8 +13,9 @@ A benchmark is a list of **jobs** ``(scene, method, setting)``:
   the camera arc), the mask-noise model of generated scenes, and where the mask candidates
   come from (the scene's own, or the builtin generator: ``Setting.masks``).
 
-Work is mapped over an ``Executor`` (``ProcessExecutor``: local processes, 2 workers by
-default; ``SerialExecutor`` for tests). Two caches make a run resumable:
+Work is mapped over an ``Executor`` (``evaluation/executors.py``: ``ProcessExecutor``, local
+processes, 2 workers by default; ``SerialExecutor`` for tests; ``DaskExecutor`` for a
+cluster). Two caches make a run resumable:
 ``<cache>/scenes/<hash>.pkl`` holds prepared scenes (generation takes seconds each) and
 ``<cache>/results/<hash>.json`` one finished job, keyed by a content hash of the scene's
 config, the method's config, the setting and the code version (a hash of the package
@@ -26,17 +27,16 @@ JSON, PNG plots) is written by ``evaluation/report.py``; the types shared by bot
 from __future__ import annotations
 
 import json
-import os
 import pickle
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Callable, Iterator, Protocol, Sequence, TypeVar
+from typing import Sequence
 
 import numpy as np
 
 from clutt3r_core.errors import SceneError, SceneFileError
+from clutt3r_core.evaluation.executors import Executor, ProcessExecutor, SerialExecutor  # noqa: F401  (re-exported)
 from clutt3r_core.evaluation.jobs import (  # noqa: F401  (re-exported: the runner's public names)
     DIFFICULTIES,
     MASK_NOISES,
@@ -72,50 +72,6 @@ __all__ = [
     "job_key",
     "code_version",
 ]
-
-
-T = TypeVar("T")
-R = TypeVar("R")
-
-
-# ------------------------------------------------------------------ executors
-
-
-class Executor(Protocol):
-    """Maps a picklable function over items; results may come back in any order."""
-
-    def map(self, fn: Callable[[T], R], items: Sequence[T]) -> Iterator[R]: ...
-
-
-class SerialExecutor:
-    """Runs every item in this process, in order (tests, debugging)."""
-
-    def map(self, fn: Callable[[T], R], items: Sequence[T]) -> Iterator[R]:
-        for it in items:
-            yield fn(it)
-
-
-class ProcessExecutor:
-    """Local worker processes (``concurrent.futures.ProcessPoolExecutor``, spawn start method).
-
-    Each worker is limited to one BLAS / OpenMP thread so that ``workers`` processes share
-    the cores instead of oversubscribing them (ours: 2 workers on the 2-core machine).
-    """
-
-    def __init__(self, workers: int = 2) -> None:
-        self.workers = max(1, int(workers))
-
-    def map(self, fn: Callable[[T], R], items: Sequence[T]) -> Iterator[R]:
-        import multiprocessing as mp
-
-        if not items:
-            return
-        for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-            os.environ[var] = "1"  # inherited by the spawned workers
-        with ProcessPoolExecutor(max_workers=self.workers, mp_context=mp.get_context("spawn")) as ex:
-            futures = [ex.submit(fn, it) for it in items]
-            for f in as_completed(futures):
-                yield f.result()
 
 
 # ------------------------------------------------------------------ specs
@@ -292,6 +248,15 @@ def run_job(job: Job) -> JobResult:
     return res
 
 
+def _store_result(res: JobResult, job: Job) -> None:
+    """File a result received from an executor in this process's cache: a worker on another
+    machine wrote it into its own disk (or nowhere reachable from here)."""
+    rf = _result_file(job)
+    if not rf.is_file():
+        rf.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_bytes(rf, json.dumps(res.to_json()).encode())
+
+
 def plan_jobs(
     scenes: Sequence[SceneSpec],
     methods: Sequence[str],
@@ -334,6 +299,7 @@ def run_benchmark(
     cached = [j for j in jobs if j not in pending]
     for j in cached:
         by_key[j.key] = run_job(j)  # reads the cache
+    job_of = {j.key: j for j in pending}
     if pending:
         # heavy jobs first: better load balance over the workers
         order = {"hard": 0, "intermediate": 1, "easy": 2}
@@ -341,6 +307,7 @@ def run_benchmark(
         bar = tqdm(total=len(pending), desc="jobs", unit="job", disable=not progress)
         for r in executor.map(run_job, pending):
             by_key[r.key] = r
+            _store_result(r, job_of[r.key])
             bar.set_postfix_str(f"{r.scene} {r.method} AP50 {r.ap50:.0f}")
             bar.update(1)
         bar.close()
