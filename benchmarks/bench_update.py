@@ -97,6 +97,27 @@ within the sampling noise; measured on seed 200: spheres, cans and boxes' 180 de
 other turns give 2-10 x)."""
 
 
+def symmetry_axes(points: np.ndarray, seed: int = 0) -> list[np.ndarray]:
+    """Unit principal axes about which EVERY turn of the 10 deg grid is a symmetry (continuous
+    symmetry: a can, a bowl; two or more such axes: a ball)."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(seed)
+    idx = rng.permutation(len(points))
+    h = min(len(points) // 2, 1500)
+    c = points.mean(axis=0)
+    A, B = points[idx[:h]] - c, points[idx[h : 2 * h]] - c
+    tree = cKDTree(A)
+    floor = float(tree.query(B)[0].mean())
+    _, V = np.linalg.eigh(np.cov((points - c).T))
+    out = []
+    for ax in V.T:
+        if all(tree.query(B @ Rotation.from_rotvec(ax * np.deg2rad(a)).as_matrix().T)[0].mean() <= SYM_TOL * floor
+               for a in range(SYM_STEP_DEG, 360, SYM_STEP_DEG)):
+            out.append(ax)
+    return out
+
+
 def symmetries(points: np.ndarray, seed: int = 0) -> list[np.ndarray]:
     """Rotation matrices (about the centroid) that map the object's surface onto itself."""
     from scipy.spatial.transform import Rotation
@@ -118,10 +139,36 @@ def symmetries(points: np.ndarray, seed: int = 0) -> list[np.ndarray]:
     return out
 
 
-def sym_rot_err_deg(R_est: np.ndarray, R_gt: np.ndarray, syms: list[np.ndarray]) -> float:
-    """Rotation error up to the object's symmetries: min over S of angle(R_est, R_gt S)
-    (S acts first, in the pre-interaction world frame about the centroid)."""
-    return min(rot_err_deg(R_est, R_gt @ S) for S in syms)
+def _closure(syms: list[np.ndarray], limit: int = 72) -> list[np.ndarray]:
+    """The group the found symmetries generate (products), up to ``limit`` elements."""
+    out = [np.eye(3)]
+    frontier = list(syms)
+    while frontier and len(out) < limit:
+        S = frontier.pop()
+        if any(np.allclose(S, G, atol=1e-6) for G in out):
+            continue
+        out.append(S)
+        frontier += [S @ G for G in syms]
+    return out
+
+
+def sym_rot_err_deg(R_est: np.ndarray, R_gt: np.ndarray, syms: list[np.ndarray],
+                    axes: list[np.ndarray] | None = None) -> float:
+    """Rotation error up to the object's symmetries (S acts first, in the pre-interaction
+    world frame about the centroid):
+
+    - two or more continuous axes (a ball): 0, no rotation is observable;
+    - one continuous axis a (a can): the angle between R_est a and R_gt S a, minimised over the
+      discrete symmetries S (a 180 deg flip maps a to -a): the turn about a is not observable;
+    - else: min over the group the discrete symmetries generate of angle(R_est, R_gt S)."""
+    axes = axes or []
+    if len(axes) >= 2:
+        return 0.0
+    if len(axes) == 1:
+        a = axes[0]
+        ang = lambda x, y: float(np.degrees(np.arccos(np.clip(x @ y, -1, 1))))  # noqa: E731
+        return min(ang(R_est @ a, R_gt @ S @ a) for S in syms)
+    return min(rot_err_deg(R_est, R_gt @ S) for S in _closure(syms))
 
 
 def run_pair(scene_dir: Path, run_dir: Path, cfg: UpdateConfig, no_depth: bool, overlay: Path | None,
@@ -170,13 +217,15 @@ def run_pair(scene_dir: Path, run_dir: Path, cfg: UpdateConfig, no_depth: bool, 
         pts = state.points_of(k).astype(np.float64)
         p_est, p_gt = pts @ est[:3, :3].T + est[:3, 3], pts @ gt[:3, :3].T + gt[:3, 3]
         gtp = sc.ground_truth.points[sc.ground_truth.point_labels == dis_o].astype(np.float64)
-        syms = symmetries(gtp)
+        syms, axes = symmetries(gtp), symmetry_axes(gtp)
         out.update(rot_err_deg=rot_err_deg(est[:3, :3], gt[:3, :3]),
-                   sym_rot_err_deg=sym_rot_err_deg(est[:3, :3], gt[:3, :3], syms), n_symmetries=len(syms),
+                   sym_rot_err_deg=sym_rot_err_deg(est[:3, :3], gt[:3, :3], syms, axes), n_symmetries=len(syms),
+                   n_sym_axes=len(axes),
                    adds_cm=100 * float(cKDTree(p_gt).query(p_est)[0].mean()),
                    trans_err_cm=100 * float(np.linalg.norm((est[:3, :3] @ c + est[:3, 3]) - (gt[:3, :3] @ c + gt[:3, 3]))),
                    gt_rot_deg=rot_err_deg(gt[:3, :3], np.eye(3)),
-                   iou_before=r.iou_before, iou_after=r.iou_after, stages=r.pose.stages, iters=len(r.pose.trace))
+                   iou_before=r.iou_before, iou_after=r.iou_after, match=r.match,
+                   stages=r.pose.stages if r.pose is not None else 0, iters=len(r.pose.trace) if r.pose is not None else 0)
     return out
 
 
@@ -221,10 +270,16 @@ def main() -> None:
                     help="ChangeConfig.min_fit_iou (appearance matches below this fit are judged unmatched)")
     ap.add_argument("--embedder", default="auto",
                     help="mask embedder for S_semantic: auto (learned when installed) or a registry name")
+    ap.add_argument("--no-depth-cues", action="store_true",
+                    help="ChangeConfig.use_depth=False: the IoU test and the silhouette fit even with depth")
+    ap.add_argument("--refine-registration", action="store_true",
+                    help="PoseConfig.refine_registration: the paper's chamfer/photo stages after the depth registration")
     ap.add_argument("--tag", default="", help="suffix of results_<tag>.json")
     a = ap.parse_args()
-    cfg = UpdateConfig(change=ChangeConfig(verify=not a.no_verify, min_fit_iou=a.min_fit_iou),
-                       pose=replace(PoseConfig(), dof=a.dof, early_exit=not a.no_early_exit))
+    cfg = UpdateConfig(change=ChangeConfig(verify=not a.no_verify, min_fit_iou=a.min_fit_iou,
+                                           use_depth=not a.no_depth_cues),
+                       pose=replace(PoseConfig(), dof=a.dof, early_exit=not a.no_early_exit,
+                                    refine_registration=a.refine_registration))
     a.out.mkdir(parents=True, exist_ok=True)
     rows = []
     for i in range(a.pairs):

@@ -205,6 +205,27 @@ def _kabsch_batch(A: np.ndarray, B: np.ndarray, w: np.ndarray) -> tuple[np.ndarr
     return R, t
 
 
+def _normals(model: np.ndarray, tree: cKDTree, k: int = 10) -> np.ndarray:
+    """(m, 3) unit normals of the model points: the least-variance direction of the k nearest."""
+    _, j = tree.query(model, k=min(k, len(model)))
+    nb = model[j] - model[j].mean(axis=1, keepdims=True)
+    _, V = np.linalg.eigh(np.einsum("mki,mkj->mij", nb, nb))
+    return V[:, :, 0]
+
+
+def _point_to_plane_batch(A: np.ndarray, B: np.ndarray, N: np.ndarray, w: np.ndarray):
+    """One linearised point-to-plane step, batched: min sum w ((dR A + dt - B) . N)^2 over a small
+    rotation vector and a translation; (S, n, 3) inputs -> (S, 3, 3), (S, 3)."""
+    J = np.concatenate([np.cross(A, N), N], axis=2)  # (S, n, 6)
+    r = ((B - A) * N).sum(axis=2)
+    H = np.einsum("sni,sn,snj->sij", J, w, J) + 1e-6 * np.eye(6)
+    g = np.einsum("sni,sn,sn->si", J, w, r)
+    x = np.linalg.solve(H, g[..., None])[..., 0]
+    dR = Rotation.from_rotvec(x[:, :3]).as_matrix()
+    # the linearisation is about the origin: A' = dR A + dt with dt = x[3:]
+    return dR, x[:, 3:]
+
+
 def _consistency(model: np.ndarray, T: np.ndarray, camera: Camera, depth: np.ndarray, tol: float) -> float:
     p = model @ T[:3, :3].T + T[:3, 3]
     uv, z = camera.project(p)
@@ -228,6 +249,7 @@ def register(model: np.ndarray, scene: np.ndarray, camera: Camera, depth: np.nda
         model = model[np.sort(rng.choice(len(model), max_model_points, replace=False))]
     cm, cs = model.mean(axis=0), scene.mean(axis=0)
     tree = cKDTree(model)
+    normals = _normals(model, tree)
     # G maps scene -> model frame: G s = R (s - cs) + cm + t; the start rotation R = S^T
     # (the model turned by S matches the scene, so the scene turned back by S^T matches the model)
     R = np.ascontiguousarray(starts.transpose(0, 2, 1))
@@ -243,7 +265,10 @@ def register(model: np.ndarray, scene: np.ndarray, camera: Camera, depth: np.nda
         j = np.minimum(j.reshape(len(R), -1), len(model) - 1)
         w = np.isfinite(dist).astype(np.float64)
         B = model[j]
-        dR, dt = _kabsch_batch(A, B, w)
+        if it <= prune_at:  # point-to-point while the starts are far off (robust) ...
+            dR, dt = _kabsch_batch(A, B, w)
+        else:  # ... then point-to-plane (converges along flat faces, where point-to-point slides)
+            dR, dt = _point_to_plane_batch(A, B, normals[j], w)
         R = np.einsum("sij,sjk->sik", dR, R)
         t = np.einsum("sij,sj->si", dR, cm + t) + dt - cm
         # truncated mean distance: the inlier fraction saturates at 1 for partial views
