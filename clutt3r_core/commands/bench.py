@@ -65,7 +65,8 @@ def bench_command(
             registered (``clutt3r doctor`` lists them). Results are the same on each.
         address: the Dask scheduler (tcp://host:8786) to send jobs to; without it, --executor
             dask starts a local cluster of WORKERS processes. Workers need the same clutt3r
-            checkout, and CACHE and any --scenes-dir at the same paths (docs/benchmark.md).
+            checkout and any --scenes-dir at the same path; results come back to CACHE here
+            (docs/benchmark.md, "Running on a Dask cluster").
         cache: cache folder for scenes and finished jobs.
         markdown: where to write the Markdown report (default OUT/report.md); plot links are
             relative to it (e.g. --out docs/benchmark --markdown docs/benchmark.md).
