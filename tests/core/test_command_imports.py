@@ -1,0 +1,71 @@
+"""What a ``clutt3r segment`` process imports (issue 13: the whole command, not only the core).
+
+``import open3d`` costs about 0.9 s per process (its package init loads its plotly/dash
+visualisation) and building the whole command table imports every command's module; the
+segment command needs neither. Checked in fresh subprocesses, since this test process has
+imported half the project already.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+from clutt3r_core.io import write_sample_layout
+from tests.core.robustness._scenes import make_scene
+
+# never needed to segment a scene: other commands' packages and open3d's visualisation
+_FORBIDDEN = ("open3d", "dash", "plotly", "clutt3r_viewer", "clutt3r_core.evaluation", "clutt3r_core.grasping",
+              "clutt3r_core.synth", "clutt3r_core.update", "clutt3r_core.baselines")
+
+
+def _modules_after(code: str, *args: str) -> tuple[subprocess.CompletedProcess, list[str]]:
+    """Run ``code`` in a fresh interpreter; the top-level names of sys.modules at exit."""
+    prog = (
+        "import atexit, json, sys\n"
+        "atexit.register(lambda: sys.__stdout__.write('MODULES=' + json.dumps(sorted(sys.modules)) + '\\n'))\n"
+        + code
+    )
+    r = subprocess.run([sys.executable, "-c", prog, *args], capture_output=True, text=True, timeout=300)
+    line = [x for x in r.stdout.splitlines() if x.startswith("MODULES=")]
+    assert line, (r.returncode, r.stdout[-2000:], r.stderr[-2000:])
+    return r, json.loads(line[-1][len("MODULES="):])
+
+
+def _loaded(mods: list[str], name: str) -> bool:
+    return any(m == name or m.startswith(name + ".") for m in mods)
+
+
+def test_importing_the_pipeline_does_not_import_open3d():
+    r, mods = _modules_after("import clutt3r_core.pipeline, clutt3r_core.commands.segment, clutt3r_core.io")
+    assert r.returncode == 0, r.stderr
+    assert [f for f in _FORBIDDEN if _loaded(mods, f)] == []
+
+
+def test_segment_command_process_imports_only_what_it_uses(tmp_path: Path):
+    scene = write_sample_layout(make_scene(3, width=160, height=120), tmp_path / "scene")
+    r, mods = _modules_after(
+        "from clutt3r_core.cli import main\nmain(sys.argv[1:])\n",
+        "segment", str(scene), "--out", str(tmp_path / "run"),
+    )
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert (tmp_path / "run" / "instances.npz").is_file()
+    assert [f for f in _FORBIDDEN if _loaded(mods, f)] == []
+    # the modules it does need were loaded (the check above is not vacuous)
+    assert _loaded(mods, "scipy.spatial") and _loaded(mods, "clutt3r_core.pipeline")
+
+
+def test_the_command_table_still_answers_without_a_command(capsys):
+    """``clutt3r --help`` and an unknown name go through the whole table (every command listed)."""
+    from clutt3r_core.cli import main
+
+    for args in (["--help"], ["no-such-command"]):
+        try:
+            main(args)
+        except SystemExit:
+            pass
+        out = capsys.readouterr()
+        text = out.out + out.err
+        assert "segment" in text and "synth" in text, text[-500:]
