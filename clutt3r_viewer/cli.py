@@ -1,4 +1,5 @@
-"""``clutt3r view``, ``clutt3r export-rerun`` and ``clutt3r demo`` (entry-point group ``clutt3r.commands``)."""
+"""``clutt3r view``, ``clutt3r export-rerun``, ``clutt3r export-html`` and ``clutt3r demo`` (entry-point group
+``clutt3r.commands``)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ from typing import Literal
 
 from tyro.conf import Positional
 
-__all__ = ["view_command", "export_rerun_command", "demo_command"]
+__all__ = ["view_command", "export_rerun_command", "demo_command", "export_html_command"]
 
 
 def view_command(
@@ -68,40 +69,96 @@ def export_rerun_command(run: Positional[Path], out: Positional[Path], scene: Pa
 
 
 def demo_command(
-    out: Path = Path("runs/demo"),
+    out: Path | None = None,
     port: int = 8080,
-    seed: int = 0,
+    seed: int = 1,
     preset: str = "intermediate",
+    scene: Path | None = None,
+    rebuild: bool = False,
 ) -> None:
-    """Generate a synthetic scene, segment it, save the run and open it in the viewer.
+    """The whole story in one command: a pre/post scene segmented, queried, grasped and updated,
+    served with a guided tour (docs/demo.md).
 
     Args:
-        out: run folder to write; the scene goes to OUT/scene.
+        out: run folder to write (default runs/demo, or runs/demo_NAME for --scene); a generated
+            scene goes to OUT/scene. A second demo on the same folder reuses it (OUT/demo.json).
         port: port of the web server (http://127.0.0.1:PORT).
-        seed: random seed of the generated scene.
-        preset: clutter level of the scene: easy, intermediate or hard.
+        seed: random seed of the generated scene (1: the update finds both the removed and the
+            pushed object, docs/demo.md).
+        preset: clutter level of the generated scene: easy, intermediate or hard.
+        scene: a scene folder (e.g. a real sample) instead of a generated one; its post-interaction
+            frames (without depth, or listed as post frames) are the update.
+        rebuild: recompute everything even when OUT/demo.json matches.
     """
-    from clutt3r_viewer import serve
+    import threading
+    import time
 
-    run = make_demo_run(out, seed=seed, preset=preset)
-    serve(run, port=port)
+    from clutt3r_core.demo import DEMO_JSON, DemoConfig, build_demo, complete_demo
+    from clutt3r_viewer import start
+    from clutt3r_viewer.panels.tour import attach_story
+
+    t0 = time.perf_counter()
+    if out is None:
+        out = Path("runs") / ("demo" if scene is None else f"demo_{Path(scene).resolve().name}")
+    cfg = DemoConfig(scene=scene, seed=seed, preset=preset)
+    if rebuild:
+        (Path(out) / DEMO_JSON).unlink(missing_ok=True)
+    story = build_demo(out, cfg, with_query=False)  # the query stages run while the first steps are shown
+    app = start(out, port=port)
+    attach_story(app, story)
+    print(f"Clutt3R demo: {app.url}  (tour ready {time.perf_counter() - t0:.1f} s after the start; Ctrl-C to stop)",
+          flush=True)
+    if not story.complete:
+        def finish() -> None:
+            try:
+                attach_story(app, complete_demo(out, cfg, story))
+                print(f"query, grasps ready {time.perf_counter() - t0:.1f} s after the start", flush=True)
+            except Exception as e:  # shown in the tour; the viewer keeps serving the rest
+                attach_story(app, story, failed=f"{type(e).__name__}: {e}")
+                raise
+
+        threading.Thread(target=finish, daemon=True).start()
+    try:
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        app.stop()
 
 
-def make_demo_run(out: Path, seed: int = 0, preset: str = "intermediate", views: int = 8,
-                  width: int = 640, height: int = 480, focal_px: float | None = None) -> Path:
-    """Generate + segment + save (the demo without the server). Returns the run folder."""
-    from clutt3r_core.pipeline import segment
-    from clutt3r_core.runs import save_run
-    from clutt3r_core.synth import SynthConfig, generate, write_synth_scene
+def make_demo_run(out: Path, seed: int = 1, preset: str = "intermediate", views: int = 8,
+                  width: int = 640, height: int = 480, focal_px: float | None = None, query: bool = False) -> Path:
+    """The demo's run without the server (``clutt3r_core.demo.build_demo``; ``query=False`` skips
+    the query, its grasps and the mask description). Returns the run folder."""
+    from clutt3r_core.demo import DemoConfig, build_demo
 
-    out = Path(out)
     kw = {} if focal_px is None else {"focal_px": focal_px}
-    cfg = SynthConfig(seed=seed, preset=preset, views=views, width=width, height=height, **kw)
-    print(f"generating a synthetic '{preset}' scene (seed {seed}, {views} views) ...", flush=True)
-    res = generate(cfg, progress=False)
-    scene_dir = write_synth_scene(res.scene, out / "scene", info=res.info, contact_sheet=False)
-    print("segmenting ...", flush=True)
-    seg = segment(res.scene)
-    save_run(seg, out, scene_root=scene_dir)  # run.json records the scene (relative: scene/)
-    print(f"{out}: {seg.num_instances} instances ({len(res.info.object_keys)} objects in the scene)", flush=True)
-    return out
+    build_demo(out, DemoConfig(seed=seed, preset=preset, views=views, width=width, height=height, **kw),
+               with_query=query)
+    return Path(out)
+
+
+def export_html_command(run: Positional[Path], out: Positional[Path], scene: Path | None = None,
+                        max_points: int = 200_000) -> None:
+    """Write a run as one standalone HTML page (cloud, instances, grasps) that opens without a server.
+
+    Args:
+        run: run folder.
+        out: the .html file to write.
+        scene: the run's scene folder, for the camera frustums (default: the one recorded in run.json).
+        max_points: points embedded in the page.
+    """
+    from clutt3r_core.annotations import Annotations
+    from clutt3r_viewer.export_html import export_html
+    from clutt3r_viewer.loading import load_viewer_data
+
+    # typed errors (a damaged run) reach the CLI: one line, status 2, --debug (issue 14)
+    data = load_viewer_data(run, scene)
+    labels = None
+    if (Path(run) / "corrections" / "ops.jsonl").is_file():  # the corrected labels, read-only
+        with Annotations.open(run, segmentation=data.seg, readonly=True) as ann:
+            labels = ann.current.instance if ann.num_ops else None
+    p = export_html(data, out, labels, max_points=max_points)
+    print(f"{p}: {p.stat().st_size / 1e6:.1f} MB ({data.seg.num_instances} instances, "
+          f"{0 if data.grasps is None else len(data.grasps)} grasps); open it in a browser, no server needed")

@@ -1,0 +1,69 @@
+"""Screenshots of every guided-tour step (docs/img/tour/NN_key.png) from a demo run.
+
+    .venv/bin/clutt3r demo --out runs/demo      # once (Ctrl-C after "query, grasps ready")
+    .venv/bin/python scripts/tour_screenshots.py runs/demo docs/img/tour
+
+Serves the run in-process, opens it in headless chromium (Debian's /usr/bin/chromium, through
+playwright) at 1280x800, clicks Next through the tour and saves one page screenshot per step.
+"""
+
+from __future__ import annotations
+
+import socket
+import sys
+import time
+from pathlib import Path
+
+ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+        "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def main(run: str, out: str, settle: float = 4.0) -> None:
+    from playwright.sync_api import sync_playwright
+
+    import clutt3r_viewer
+    from clutt3r_core.demo import load_story
+    from clutt3r_viewer.panels.tour import TourPanel, attach_story
+    from clutt3r_viewer.tour import STEPS
+
+    story = load_story(run)
+    if story is None:
+        raise SystemExit(f"{run}: not a demo run (no demo.json); run `clutt3r demo --out {run}` first")
+    app = clutt3r_viewer.start(run, port=_free_port())
+    attach_story(app, story)
+    Path(out).mkdir(parents=True, exist_ok=True)
+    try:
+        with sync_playwright() as pw:
+            b = pw.chromium.launch(executable_path="/usr/bin/chromium", args=ARGS)
+            page = b.new_page(viewport={"width": 1280, "height": 800})
+            page.goto(app.url)
+            page.wait_for_selector("canvas", timeout=60_000)
+            sess = app.wait_for_sessions(1, timeout=60)[0]
+            tour = sess.panel(TourPanel)
+            t0 = time.time()
+            while tour.applied < 1 and time.time() - t0 < 60:
+                time.sleep(0.1)
+            for k, step in enumerate(STEPS):
+                if k:
+                    n = tour.applied
+                    page.get_by_role("button", name="Next").click()
+                    t0 = time.time()
+                    while tour.applied <= n and time.time() - t0 < 60:
+                        time.sleep(0.1)
+                time.sleep(settle)  # software WebGL: a few frames
+                p = Path(out) / f"{k + 1:02d}_{step.key}.png"
+                page.screenshot(path=str(p))
+                print(p, flush=True)
+            b.close()
+    finally:
+        app.stop()
+
+
+if __name__ == "__main__":
+    main(*sys.argv[1:3])
