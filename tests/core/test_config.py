@@ -132,3 +132,69 @@ def test_a_trace_without_config_is_refused(tmp_path):
 def test_trace_refuses_an_untyped_config():
     with pytest.raises(Exception, match="SegmentConfig"):
         replace(tiny_segmentation().trace, config=asdict(SegmentConfig()))
+
+
+# ------------------------------------------------------------------ the paper preset and our additions
+
+
+def _flat(cfg) -> dict:
+    out = {}
+    for k, v in asdict(cfg).items():
+        if isinstance(v, dict):
+            out.update({f"{k}.{kk}": vv for kk, vv in v.items()})
+        else:
+            out[k] = v
+    return out
+
+
+def test_ours_is_the_default_and_every_addition_is_on_in_it():
+    assert PRESETS["default"] == SegmentConfig()
+    ours = _flat(SegmentConfig())
+    for a in ADDITIONS:
+        for path, on, off in a.fields:
+            assert ours[path] == on, (a.key, path)
+            assert on != off, (a.key, path)
+
+
+def test_the_paper_preset_differs_from_ours_exactly_in_the_additions():
+    ours, paper = _flat(SegmentConfig()), _flat(PRESETS["paper"])
+    differ = {k for k in ours if ours[k] != paper[k]}
+    switched = [path for a in ADDITIONS for path, _, _ in a.fields]
+    assert len(switched) == len(set(switched))  # no field belongs to two additions
+    assert differ == set(switched)
+    for a in ADDITIONS:
+        for path, _, off in a.fields:
+            assert paper[path] == off
+    # the paper's text, spot checks (Sec. III-A eq. 1, III-B.1, III-B.2, III-B.4)
+    p = PRESETS["paper"]
+    assert not p.supervoxels.support_removal and not p.supervoxels.absolute_normal_dot
+    assert p.trees.tau_contain == 1.0 and p.trees.min_area_px == 1
+    assert not p.grouping.one_mask_per_view and not p.exclude_background_masks
+    assert p.vote.min_instance_points == 0 and p.vote.min_coverage == 0.0 and p.occupancy.normalise == "all"
+    # the paper's own values are shared (Sec. IV)
+    assert (p.grouping.tau_spat, p.grouping.tau_sem, p.pointcloud.voxel_size, p.pointcloud.min_points) == (
+        0.5, 0.65, 0.005, 3)
+
+
+@pytest.mark.parametrize("key", [a.key for a in ADDITIONS])
+def test_leave_one_out_changes_only_that_addition(key):
+    fields = {path for a in ADDITIONS if a.key == key for path, _, _ in a.fields}
+    ours, paper = _flat(SegmentConfig()), _flat(PRESETS["paper"])
+    wo, wp = _flat(ours_without(key)), _flat(paper_with(key))
+    assert {k for k in ours if ours[k] != wo[k]} == fields
+    assert {k for k in paper if paper[k] != wp[k]} == fields
+
+
+def test_an_unknown_addition_or_field_is_refused():
+    with pytest.raises(KeyError, match="no addition"):
+        ours_without("nonsense")
+    with pytest.raises(KeyError, match="no field"):
+        with_fields(SegmentConfig(), {"vote.nonsense": 1})
+
+
+def test_only_the_fields_added_after_v1_may_be_missing(tmp_path):
+    data = json.loads(_V1_CONFIG.read_text())
+    assert config_from_json(data, "trace.json").vote.revote_dropped is False
+    data["vote"].pop("min_group_size")
+    with pytest.raises(SceneFileError, match="config.vote.min_group_size"):
+        config_from_json(data, "trace.json")
