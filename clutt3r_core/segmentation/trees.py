@@ -36,11 +36,18 @@ class TreeConfig:
 
     tau_contain: float = 0.85
     """Fraction of a mask's pixels that must lie inside another mask for it to count as
-    contained (ours; the paper says "contained at the pixel level" and real Grounded-SAM
-    masks disagree by a few boundary pixels)."""
+    contained (ours; the paper says "contained within the pixel level" (Fig. 3), i.e. 1.0,
+    the ``paper`` preset's value; real Grounded-SAM masks disagree by a few boundary pixels)."""
     min_area_px: int = 0
     """Masks smaller than this many pixels are dropped before the tree is built; 0 = auto,
-    0.01 % of the image (ours: single-digit-pixel specks carry no 3D evidence)."""
+    0.01 % of the image (ours: single-digit-pixel specks carry no 3D evidence); 1 = keep
+    every non-empty mask (the paper's text, which drops none)."""
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.tau_contain <= 1.0:
+            raise SceneError(f"TreeConfig.tau_contain must be in (0, 1], got {self.tau_contain}")
+        if self.min_area_px < 0:
+            raise SceneError(f"TreeConfig.min_area_px must be >= 0 (0 = auto), got {self.min_area_px}")
 
 
 @dataclass(frozen=True, eq=False)
