@@ -165,8 +165,8 @@ def save_trace(trace: Trace, folder: str | Path) -> Path:
         "frames": trace.frames,
         "node_frame": n.frame, "node_view": n.view, "node_mask_id": n.mask_id, "node_parent": n.parent,
         "node_is_leaf": n.is_leaf, "node_background": n.background,
-        # float32, as used for S_semantic (issue 13: float16 drifted by up to ~1e-3 from the values
-        # the grouping saw, so an explanation recomputed from the trace could disagree with it)
+        # float32, as used for S_semantic (issue 13: float16 moved cosines by up to 6e-4 on a hard
+        # generated scene, so a pair at tau_sem recomputed from the trace could disagree with the run)
         "embeddings": trace.embeddings.astype(np.float32),
         "occ_shape": np.asarray(occ.shape, np.int64),
         "occ_rows": rows.astype(np.int32), "occ_cols": cols.astype(np.int32),
