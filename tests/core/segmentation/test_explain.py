@@ -201,7 +201,7 @@ def test_trace_round_trip_and_old_traces(tmp_path):
     for f in ("node", "reason", "other"):
         assert np.array_equal(getattr(back.grouping.residuals, f), getattr(t.grouping.residuals, f))
     assert np.array_equal(back.vote.sv_reason, t.vote.sv_reason)
-    assert np.allclose(back.vote.sv_top_vote, t.vote.sv_top_vote, atol=1e-3)  # float16 on disk
+    assert np.array_equal(back.vote.sv_top_vote, t.vote.sv_top_vote)  # float32 on disk since issue 13
     assert explain_pair(back, (0, 2), (1, 1)).text() == explain_pair(t, (0, 2), (1, 1)).text()
 
     # a trace written before these records existed: strip them from the files
