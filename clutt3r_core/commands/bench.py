@@ -22,6 +22,8 @@ def bench_command(
     ablation: bool = False,
     sweep_per_difficulty: int = 2,
     masks: Literal["scene", "builtin"] = "scene",
+    depth_noise: Literal["realsense", "none"] = "realsense",
+    depth_sweep: bool = True,
     width: int = 0,
     height: int = 0,
     seed0: int = 0,
@@ -55,6 +57,9 @@ def bench_command(
         masks: mask candidates of every job: scene = the scene's own (generated scenes: the
             mask-noise model's); builtin = the builtin RGB-D generator's, made per job (no noise
             sweep then: the generator replaces the noise model's candidates). Part of the job key.
+        depth_noise: depth model of generated scenes: realsense = RealSense-like disparity noise
+            and holes (``synth/sensor.py``, the default), none = clean rendered depth.
+        depth_sweep: also run ours and the baselines with the other depth model on the sweep subset.
         width: image width of generated scenes (0 = suite default).
         height: image height of generated scenes (0 = suite default).
         seed0: first seed of the generated scenes.
@@ -95,22 +100,28 @@ def bench_command(
     # absolute: a worker's working directory is not ours (and on a cluster, a shared mount)
     cache = cache.resolve()
     t0 = time.perf_counter()
-    main = Setting(8, "grounded-sam-like", masks)
+    main = Setting(8, "grounded-sam-like", masks, depth_noise)
     if masks != "scene":
         noise_sweep = False  # every noise variant would get the same generated candidates
     if scenes_dir is not None:
         scenes = folder_suite(scenes_dir)
         sweep_scenes = scenes[: max(1, sweep_per_difficulty)]
         noise_sweep = False  # a folder's masks are what they are
+        depth_sweep = False  # and so is its depth
     else:
         scenes = synth_suite(n, width=w, height=h, seed0=seed0)
         sweep_scenes = [s for d in DIFFICULTIES for s in [x for x in scenes if x.difficulty == d][:sweep_per_difficulty]]
     jobs = plan_jobs(scenes, methods, [main], cache)
     sweep_methods = [m for m in ("ours", "naive", "maskclustering") if m in methods]
     if view_sweep:
-        jobs += plan_jobs(sweep_scenes, sweep_methods, [Setting(4, main.mask_noise, masks), Setting(6, main.mask_noise, masks)], cache)
+        jobs += plan_jobs(sweep_scenes, sweep_methods, [Setting(4, main.mask_noise, masks, depth_noise),
+                                                        Setting(6, main.mask_noise, masks, depth_noise)], cache)
     if noise_sweep:
-        jobs += plan_jobs(sweep_scenes, sweep_methods, [Setting(8, "clean"), Setting(8, "harsh")], cache)
+        jobs += plan_jobs(sweep_scenes, sweep_methods, [Setting(8, "clean", depth_noise=depth_noise),
+                                                        Setting(8, "harsh", depth_noise=depth_noise)], cache)
+    if depth_sweep:
+        other = "none" if depth_noise == "realsense" else "realsense"
+        jobs += plan_jobs(sweep_scenes, sweep_methods, [Setting(8, main.mask_noise, masks, other)], cache)
     if ablation:
         from clutt3r_core.evaluation.methods import ABLATION_METHODS
 

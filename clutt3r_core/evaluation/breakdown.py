@@ -220,7 +220,8 @@ def breakdown_from_cells(pred: VoxelLabels, scores: np.ndarray, gt: VoxelLabels,
     # target label of every cell
     target = np.full(len(cells), -1, np.int64)
     on_obj = lg >= 0
-    own_id = np.where(own >= 0, pid[np.maximum(own, 0)], -1)
+    own_id = np.full(ngt, -1, np.int64)
+    own_id[own >= 0] = pid[own[own >= 0]]
     target[on_obj] = own_id[gi[on_obj]]
     # an object without an own prediction: a new instance (oracle), scored like the prediction holding most of it
     next_id = (int(pid.max()) + 1) if npred else 0
@@ -253,7 +254,8 @@ def breakdown_from_cells(pred: VoxelLabels, scores: np.ndarray, gt: VoxelLabels,
 
     assign(on_obj & ~in_pred, "hole")
     assign(~in_gt & (lp >= 0), "off_gt")
-    assign(on_obj & (lp >= 0) & frag_lab[np.maximum(lp, 0)] & (dom_col[np.maximum(pi, 0)] == lg), "fragment")
+    if npred:
+        assign(on_obj & (lp >= 0) & frag_lab[np.maximum(lp, 0)] & (dom_col[np.minimum(pi, npred - 1)] == lg), "fragment")
     assign(near, "boundary")
     assign(on_obj & (lp < 0), "missing")
     assign(on_obj & (lp >= 0), "merged")

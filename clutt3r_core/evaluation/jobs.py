@@ -16,12 +16,14 @@ from typing import Iterable, Literal
 import numpy as np
 
 from clutt3r_core.errors import SceneError
+from clutt3r_core.evaluation.breakdown import ErrorBreakdown
 from clutt3r_core.evaluation.methods import PRESET_OF  # noqa: F401  (importing it registers the ablation methods)
 
 __all__ = [
     "METHODS",
     "DIFFICULTIES",
     "MASK_NOISES",
+    "DEPTH_NOISES",
     "MASK_SOURCES",
     "Method",
     "SceneSpec",
@@ -37,6 +39,10 @@ Method = Literal["ours", "paper", "no-spatial", "no-substitution", "naive", "mas
 METHODS: tuple[str, ...] = ("ours", "paper", "no-spatial", "no-substitution", "naive", "maskclustering")
 DIFFICULTIES: tuple[str, ...] = ("easy", "intermediate", "hard")
 MASK_NOISES: tuple[str, ...] = ("clean", "grounded-sam-like", "harsh")
+DEPTH_NOISES: tuple[str, ...] = ("realsense", "none")
+"""Depth models of generated scenes (``synth.sensor``): the standard suite uses ``realsense``
+(disparity noise, holes at depth edges and grazing angles, issue 13); ``none`` = clean
+rendered depth, kept as a sweep."""
 MaskSource = Literal["scene", "builtin"]
 MASK_SOURCES: tuple[str, ...] = ("scene", "builtin")
 """Where a job's mask candidates come from: the scene's own (generated scenes: the mask-noise
@@ -92,38 +98,50 @@ class SceneSpec:
     path: str | None = None
     identity: str = ""
 
-    def with_noise(self, mask_noise: str) -> "SceneSpec":
-        """The same generated scene with another mask-noise model (geometry is unchanged)."""
-        if self.synth is None or self.synth["mask_noise"] == mask_noise:
+    def with_noise(self, mask_noise: str, depth_noise: str | None = None) -> "SceneSpec":
+        """The same generated scene with another mask-noise model and, if given, depth model
+        (the objects and cameras are unchanged)."""
+        if self.synth is None:
             return self
-        cfg = {**self.synth, "mask_noise": mask_noise}
+        depth_noise = depth_noise or self.synth.get("depth_noise", "none")
+        if self.synth["mask_noise"] == mask_noise and self.synth.get("depth_noise", "none") == depth_noise:
+            return self
+        cfg = {**self.synth, "mask_noise": mask_noise, "depth_noise": depth_noise}
         return replace(self, synth=cfg, identity=_sha([cfg, synth_version()]))
 
 
 @dataclass(frozen=True)
 class Setting:
-    """Views used (a subset of the scene's initial views), mask noise of generated scenes, and
-    the mask candidates' source (``MASK_SOURCES``; with ``builtin`` the noise model's candidates
-    are replaced, so ``mask_noise`` only picks the cached scene variant)."""
+    """Views used (a subset of the scene's initial views), mask noise of generated scenes, the
+    mask candidates' source (``MASK_SOURCES``; with ``builtin`` the noise model's candidates
+    are replaced, so ``mask_noise`` only picks the cached scene variant) and the depth model of
+    generated scenes (``DEPTH_NOISES``; scene folders keep their own depth)."""
 
     views: int = 8
     mask_noise: str = "grounded-sam-like"
     masks: str = "scene"
+    depth_noise: str = "realsense"
 
     def __post_init__(self) -> None:
         if self.masks not in MASK_SOURCES:
             raise SceneError(f"unknown mask source '{self.masks}'; choose from {', '.join(MASK_SOURCES)}")
+        if self.depth_noise not in DEPTH_NOISES:
+            raise SceneError(f"unknown depth model '{self.depth_noise}'; choose from {', '.join(DEPTH_NOISES)}")
 
     @property
     def label(self) -> str:
-        return f"{self.views}v/{self.mask_noise}" + ("" if self.masks == "scene" else f"/{self.masks}")
+        return (f"{self.views}v/{self.mask_noise}" + ("" if self.masks == "scene" else f"/{self.masks}")
+                + ("" if self.depth_noise == "realsense" else f"/depth-{self.depth_noise}"))
 
     def key_data(self) -> dict:
-        """What identifies the setting in a job key; ``masks="scene"`` is left out so keys of
-        results cached before the field existed stay valid."""
+        """What identifies the setting in a job key; ``masks="scene"`` and ``depth_noise="none"``
+        (clean depth, all there was before the field existed) are left out so keys of results
+        cached before the fields existed stay valid."""
         d = asdict(self)
         if d["masks"] == "scene":
             del d["masks"]
+        if d["depth_noise"] == "none":
+            del d["depth_noise"]
         return d
 
 
@@ -181,6 +199,10 @@ class JobResult:
     match_thresholds: tuple[float, ...] = ()
     code_version: str = ""
     masks: str = "scene"
+    depth_noise: str = "none"
+    """The setting's depth model (``DEPTH_NOISES``; results cached before the field were on clean depth)."""
+    breakdown: ErrorBreakdown | None = None
+    """Where the scene's strict-IoU AP is lost (``evaluation.breakdown``); None in older results."""
     cached: bool = field(default=False, compare=False)
 
     @property
@@ -190,6 +212,7 @@ class JobResult:
     def to_json(self) -> dict:
         d = asdict(self)
         d.pop("cached")
+        d["breakdown"] = None if self.breakdown is None else self.breakdown.to_json()
         return d
 
     @staticmethod
@@ -200,6 +223,7 @@ class JobResult:
         d["match_scores"] = tuple(d.get("match_scores", ()))
         d["match_tp"] = tuple(tuple(bool(x) for x in row) for row in d.get("match_tp", ()))
         d["match_thresholds"] = tuple(d.get("match_thresholds", ()))
+        d["breakdown"] = None if d.get("breakdown") is None else ErrorBreakdown.from_json(d["breakdown"])
         return JobResult(**d, cached=cached)
 
     def matches(self):

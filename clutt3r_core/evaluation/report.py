@@ -18,6 +18,7 @@ from typing import Sequence
 
 import numpy as np
 
+from clutt3r_core.evaluation.report_breakdown import breakdown_section, depth_section
 from clutt3r_core.io.images import atomic_write_bytes
 
 __all__ = ["write_report", "summary_rows", "ablation_tables"]
@@ -274,6 +275,9 @@ def write_report(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     main = main or Setting()
+    # results of the other depth model (issue 13's sweep) have a table of their own
+    depth_res = [r for r in results if r.depth_noise not in (main.depth_noise, "scene")]
+    all_results, results = results, [r for r in results if r.depth_noise in (main.depth_noise, "scene")]
     res_all_main = [r for r in results if r.views == main.views and r.mask_noise == main.mask_noise]
     res_main = [r for r in res_all_main if not _is_ablation(r.method)]
     methods = _methods(res_main)
@@ -300,8 +304,9 @@ def write_report(
     md += [
         f"Scenes: {len(main_scene_names)} ("
         + ", ".join(f"{len(ndiff[d])} {d}" for d in list(_DIFF) + sorted(set(ndiff) - set(_DIFF)) if ndiff[d])
-        + f"); main setting {main.views} views, `{main.mask_noise if main.masks == 'scene' else main.masks}` mask candidates. "
-        f"Jobs: {len(results)} ({sum(r.cached for r in results)} from cache). "
+        + f"); main setting {main.views} views, `{main.mask_noise if main.masks == 'scene' else main.masks}` mask candidates, "
+        f"`{main.depth_noise}` depth (generated scenes). "
+        f"Jobs: {len(all_results)} ({sum(r.cached for r in all_results)} from cache). "
         f"Wall time of this run: {_f(elapsed / 60, 1)} min with {workers} worker(s) on "
         f"{os.cpu_count()} CPU(s) ({platform.processor() or platform.machine()}). Code version of the results: "
         + ", ".join(f"`{v}`" for v in sorted({r.code_version for r in results} - {""})) + ".",
@@ -488,6 +493,7 @@ def write_report(
             r = by.get((s, m))
             row.append(f"{_f(r.ap25, 0)} / {_f(r.ap50, 0)} ({r.num_pred})" if r else "–")
         rows.append(row)
+    md += breakdown_section(res_main) + depth_section(depth_res, res_main, main.depth_noise)
     md += ["## Per scene", "", "AP25 / AP50 (number of predicted instances); occlusion in percent; GT = objects.", "",
            _table(["scene", "occl.", "GT"] + [_NAMES.get(m, m) for m in methods], rows), ""]
     if notes.strip():
@@ -501,7 +507,8 @@ def write_report(
     atomic_write_bytes(report, "\n".join(md).encode())
     payload = {"schema_version": 1, "code_version": code_version(), "command": command,
                "elapsed_seconds": None if math.isnan(elapsed) else elapsed, "workers": workers,
-               "main_setting": {"views": main.views, "mask_noise": main.mask_noise, "masks": main.masks},
-               "results": [r.to_json() for r in results]}
+               "main_setting": {"views": main.views, "mask_noise": main.mask_noise, "masks": main.masks,
+                                "depth_noise": main.depth_noise},
+               "results": [r.to_json() for r in all_results]}
     atomic_write_bytes(out / "results.json", json.dumps(payload, indent=1).encode())
     return report

@@ -86,8 +86,12 @@ def synth_suite(
     mask_noise: str = "grounded-sam-like",
     seed0: int = 0,
     n_objects: int | None = None,
+    depth_noise: str = "realsense",
 ) -> list[SceneSpec]:
-    """Generated scenes: seeds seed0 .. seed0 + per_difficulty - 1 of each difficulty preset."""
+    """Generated scenes: seeds seed0 .. seed0 + per_difficulty - 1 of each difficulty preset.
+
+    ``depth_noise``: the depth model (``jobs.DEPTH_NOISES``); RealSense-like by default, as a
+    robot's camera measures (issue 13: clean rendered depth hid most of the strict-IoU loss)."""
     from clutt3r_core.synth.generator import SynthConfig
 
     out = []
@@ -95,7 +99,7 @@ def synth_suite(
     for d in difficulties:
         for s in range(seed0, seed0 + per_difficulty):
             cfg = asdict(SynthConfig(seed=s, preset=d, views=views, width=width, height=height,
-                                     mask_noise=mask_noise, n_objects=n_objects))
+                                     mask_noise=mask_noise, n_objects=n_objects, depth_noise=depth_noise))
             out.append(SceneSpec(f"synth_{d}_{s:04d}", d, synth=cfg, identity=_sha([cfg, sv])))
     return out
 
@@ -233,6 +237,9 @@ def run_job(job: Job) -> JobResult:
         pred = _run_method(job.method, scene)
     wall = time.perf_counter() - t0
     ap, m = evaluate_instances(pred.points, pred.instance, pred.scores, scene.ground_truth)
+    from clutt3r_core.evaluation.breakdown import error_breakdown
+
+    breakdown = error_breakdown(pred.points, pred.instance, pred.scores, scene.ground_truth)
     res = JobResult(
         key=job.key, scene=job.scene.name, difficulty=job.scene.difficulty, mean_occlusion=prep.mean_occlusion,
         method=job.method, views=len(scene.initial), mask_noise=job.setting.mask_noise,
@@ -242,6 +249,8 @@ def run_job(job: Job) -> JobResult:
         match_scores=tuple(float(x) for x in m.scores), match_tp=tuple(tuple(bool(x) for x in r) for r in m.tp),
         match_thresholds=tuple(float(t) for t in m.thresholds), code_version=code_version(),
         masks=job.setting.masks,
+        depth_noise=job.setting.depth_noise if job.scene.synth is not None else "scene",
+        breakdown=breakdown,
     )
     rf.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(rf, json.dumps(res.to_json()).encode())
@@ -268,7 +277,7 @@ def plan_jobs(
     version = code_version()
     for st in settings:
         for sc in scenes:
-            spec = sc.with_noise(st.mask_noise)
+            spec = sc.with_noise(st.mask_noise, st.depth_noise)
             for m in methods:
                 jobs.append(Job(spec, m, st, str(cache_dir), job_key(spec, m, st, version)))  # unknown method raises
     return jobs

@@ -109,11 +109,14 @@ def apply_depth_noise(
     z = d.astype(np.float64)
     hit = np.isfinite(z)
     zf = np.where(hit, z, 0.0)
-    noise = rng.normal(0.0, cfg.disparity_sigma, size=(H, W))
+    # the sigmas are pixels at 640 px width (docstring): a smaller image of the same camera has
+    # coarser pixels and fx, so its disparity error in its own pixels shrinks by the same factor and
+    # the depth error stays the camera's (unscaled, a 160 px image had 4x the depth noise)
+    noise = rng.normal(0.0, cfg.disparity_sigma * scale, size=(H, W))
     if cfg.correlated_sigma > 0:
         k = max(1.0, cfg.correlated_px * scale)
         c = cv2.GaussianBlur(rng.normal(size=(H, W)).astype(np.float32), (0, 0), k)
-        c *= cfg.correlated_sigma / max(float(c.std()), 1e-9)
+        c *= cfg.correlated_sigma * scale / max(float(c.std()), 1e-9)
         noise += c
     # z' = f b / (f b / z + e)  ~  z - z^2 e / (f b)
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -21,10 +21,11 @@ def test_mask_source_is_part_of_the_key():
     spec = synth_suite(1, difficulties=("easy",), width=160, height=120, views=3)[0]
     scene_key, builtin_key = job_key(spec, "ours", Setting(3)), job_key(spec, "ours", Setting(3, masks="builtin"))
     assert scene_key != builtin_key
-    # results cached before the field existed keep their key
-    old = _sha([spec.identity, "ours", _method_config("ours"), {"views": 3, "mask_noise": "grounded-sam-like"},
+    # results cached before the field existed (clean depth, the scene's masks) keep their key
+    clean = spec.with_noise("grounded-sam-like", "none")
+    old = _sha([clean.identity, "ours", _method_config("ours"), {"views": 3, "mask_noise": "grounded-sam-like"},
                 code_version()])
-    assert scene_key == old
+    assert job_key(clean, "ours", Setting(3, depth_noise="none")) == old
     assert Setting(3, masks="builtin").label == "3v/grounded-sam-like/builtin" and Setting(3).label == "3v/grounded-sam-like"
     with pytest.raises(SceneError, match="mask source"):
         Setting(3, masks="sam")

@@ -71,6 +71,14 @@ def test_spurious_prediction_on_the_table():
     assert b.num_spurious == 1 and b.num_fragments == 0
 
 
+def test_no_prediction_at_all():
+    pts, lab = pred([(A, -1), (B, -1), (TABLE, -1)])
+    b = error_breakdown(pts, lab, np.zeros(0), GT)
+    assert b.num_pred == 0 and b.ap == 0.0 and b.num_missed_objects == 2
+    assert kinds(b) == {"missing": b.gt_cells - kinds(b).get("boundary", 0), **({"boundary": kinds(b)["boundary"]} if "boundary" in kinds(b) else {})}
+    assert b.ap_all_fixed == 100.0
+
+
 def test_json_round_trip_and_bad_input():
     pts, lab = pred([(A, 0), (B, 0), (TABLE, -1)])
     b = error_breakdown(pts, lab, SC[:1], GT)

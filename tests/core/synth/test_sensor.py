@@ -25,6 +25,16 @@ def test_noise_grows_with_square_of_depth():
     assert 2.5 < stds[1] / stds[0] < 6.0  # ~4 for z^2
 
 
+def test_depth_noise_does_not_depend_on_the_image_size():
+    # the same camera at 640 and 160 px (fx scaled with the width): the same depth error in metres
+    cfg = DEPTH_NOISE_PRESETS["realsense"]
+    stds = []
+    for w, fx in ((640, 400.0), (160, 100.0)):
+        d = np.full((w * 3 // 4, w), 0.6, np.float32)
+        stds.append(np.nanstd(apply_depth_noise(d, np.ones_like(d), fx, cfg, np.random.default_rng(3))))
+    assert 0.7 < stds[1] / stds[0] < 1.4
+
+
 def test_holes_at_depth_edges_and_grazing_angles():
     cfg = DEPTH_NOISE_PRESETS["realsense"]
     d = np.full((100, 100), 0.8, np.float32)
