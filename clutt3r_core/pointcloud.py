@@ -190,8 +190,9 @@ class FusedCloud:
 
 
 # Points per block of the normal estimation: bounds the (block, knn) neighbour
-# offsets (3 x 20 x 64 Ki float64 = 30 MiB) at 1080p, where N reaches a few 100 k.
-_NORMAL_BLOCK = 1 << 16
+# offsets and indices (3 x 20 x 16 Ki float64 + 20 x 16 Ki int64 = 10 MiB) at 1080p,
+# where N reaches a few 100 k; larger blocks measured no faster.
+_NORMAL_BLOCK = 1 << 14
 
 
 def _estimate_normals(points: np.ndarray, knn: int) -> np.ndarray:
@@ -313,29 +314,32 @@ def _compact(lin: np.ndarray, ncells: int) -> tuple[np.ndarray, int]:
     occ = np.zeros(ncells, dtype=bool)
     occ[lin] = True
     occupied = np.flatnonzero(occ)
+    del occ
     lut = np.empty(ncells, dtype=np.int32)
     lut[occupied] = np.arange(len(occupied), dtype=np.int32)
     return lut[lin], len(occupied)
 
 
 def _group_keys(keys: list[np.ndarray], ext: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Group integer voxel keys (three (P,) int64 columns in 0..ext-1).
+    """Group integer voxel keys (three (P,) int32 columns in 0..ext-1).
 
-    Returns (inverse (P,) int64 into the distinct voxels, counts (U,) int64), voxels in
+    Returns (inverse (P,) int32 into the distinct voxels, counts (U,) int64), voxels in
     the sorted order of the packed key x + ex * (y + ey * z), as np.unique would give.
     Two dense passes: (x, y) columns first (a tabletop scene occupies few of them),
     then (column, z), whose rank order is the same (z, y, x) order.
     """
     ex, ey, ez = (int(e) for e in ext)
     if ex * ey <= _DENSE_GRID_CELLS:
-        col, ncol = _compact(keys[0] + ex * keys[1], ex * ey)
+        # int32 arithmetic is exact here: both packed keys stay below _DENSE_GRID_CELLS
+        col, ncol = _compact(keys[0] + np.int32(ex) * keys[1], ex * ey)
         if ncol * ez <= _DENSE_GRID_CELLS:
-            inv, u = _compact(col.astype(np.int64) + ncol * keys[2], ncol * ez)
-            inverse = inv.astype(np.int64)
+            col += np.int32(ncol) * keys[2]
+            inverse, u = _compact(col, ncol * ez)
             return inverse, np.bincount(inverse, minlength=u)
-    lin = keys[0] + ex * (keys[1] + ey * keys[2])
+        del col
+    lin = keys[0].astype(np.int64) + ex * (keys[1].astype(np.int64) + ey * keys[2].astype(np.int64))
     _, inverse, counts = np.unique(lin, return_inverse=True, return_counts=True)
-    return inverse.reshape(-1), counts
+    return inverse.reshape(-1).astype(np.int32), counts
 
 
 def fuse_views(views: Sequence[View], cfg: PointCloudConfig = PointCloudConfig()) -> FusedCloud:
@@ -359,8 +363,12 @@ def fuse_views(views: Sequence[View], cfg: PointCloudConfig = PointCloudConfig()
         pix_list.append(pix)
         strides.append(s)
     offsets = np.concatenate([[0], np.cumsum([len(p) for p in pix_list])])
+    # Memory (issue 13: 1080p): the per-view lists are freed as soon as they are joined, keys
+    # and voxel indices are int32, and the raw points go before the normals are estimated.
     P = np.concatenate(pts_list)
+    pts_list.clear()
     C = np.concatenate(col_list)
+    col_list.clear()
 
     # Integer voxel keys packed into one int64, then grouped.
     if len(P):
@@ -368,12 +376,16 @@ def fuse_views(views: Sequence[View], cfg: PointCloudConfig = PointCloudConfig()
         inv_size = np.float32(1.0 / cfg.voxel_size)
         keys = []
         for a in range(3):
-            k = np.floor(P[:, a] * inv_size).astype(np.int64)
-            k -= k.min()
-            keys.append(k)
-        ext = np.array([k.max() + 1 for k in keys], dtype=np.int64)
-        ncells = float(np.prod(ext.astype(np.float64)))
-        if ncells >= 2.0**62:
+            k = np.floor(P[:, a] * inv_size)  # float32; exact integers below 2^24
+            lo, hi = float(k.min()), float(k.max())
+            if hi - lo >= 2**24:  # 84 km at 5 mm: no tabletop; also keeps the keys exact int32
+                raise SceneError(f"fused scene spans {hi - lo + 1:.0f} voxels along axis {a}, too large to "
+                                 "index (check depth and poses)")
+            k -= np.float32(lo)
+            keys.append(k.astype(np.int32))
+            del k
+        ext = np.array([int(k.max()) + 1 for k in keys], dtype=np.int64)
+        if float(np.prod(ext.astype(np.float64))) >= 2.0**62:
             raise SceneError(f"fused scene spans {ext.tolist()} voxels, too large to index (check depth and poses)")
         inverse, counts = _group_keys(keys, ext)
         del keys
@@ -383,13 +395,15 @@ def fuse_views(views: Sequence[View], cfg: PointCloudConfig = PointCloudConfig()
     keep = counts >= cfg.min_points
     n = int(keep.sum())
     # Dropped voxels map to a trash bin n, so the sums below need no masking.
-    remap = np.full(len(counts), n, dtype=np.int64)
-    remap[keep] = np.arange(n)
+    remap = np.full(len(counts), n, dtype=np.int32)
+    remap[keep] = np.arange(n, dtype=np.int32)
     vox = remap[inverse]  # (P,) kept voxel of every raw point, n = dropped
+    del inverse, remap
     cnt = counts[keep]
     denom = np.maximum(cnt, 1)[:, None]
     mean = np.stack([np.bincount(vox, weights=P[:, a], minlength=n + 1)[:n] for a in range(3)], axis=1) / denom
     cmean = np.stack([np.bincount(vox, weights=C[:, a], minlength=n + 1)[:n] for a in range(3)], axis=1) / denom
+    del P, C
 
     pixel_voxel = []
     vis = np.zeros((len(views), n + 1), dtype=bool)
@@ -400,6 +414,8 @@ def fuse_views(views: Sequence[View], cfg: PointCloudConfig = PointCloudConfig()
         pv[pix_list[i]] = np.where(vv < n, vv, -1)
         vis[i, vv] = True
         pixel_voxel.append(pv.reshape(cam.height, cam.width))
+        pix_list[i] = None
+    del vox
     vis = vis[:, :n]
 
     normals = _estimate_normals(mean, cfg.normal_knn)

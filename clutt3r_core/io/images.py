@@ -123,7 +123,8 @@ def read_depth_mm(path: str | Path, expect_hw: tuple[int, int] | None = None, sc
     if img.ndim != 2:
         raise SceneFileError(path, f"depth PNG must be single-channel, got {img.shape[2]} channels")
     _check_hw(path, img, expect_hw, "depth")
-    d = img.astype(np.float32) * np.float32(scale)
+    d = img.astype(np.float32)
+    d *= np.float32(scale)  # in place: one (H, W) float32 per depth map, not two
     d[img == 0] = np.nan
     return d
 

@@ -200,10 +200,11 @@ def load_sample_layout(root: str | Path, *, load_masks: bool = True, load_gt: bo
         masks = None
         if load_masks and mask_dir.is_dir():
             items = masks_by_frame.get(frame, [])
-            if items:
-                stack = np.stack([read_mask(p, hw) for _, p in items])
-            else:
-                stack = np.zeros((0, *hw), bool)
+            # filled in place: a list of masks plus np.stack held each view's masks twice,
+            # 8 views at once in the thread pool (issue 13: 1080p peak memory)
+            stack = np.empty((len(items), *hw), bool)
+            for j, (_, p) in enumerate(items):
+                stack[j] = read_mask(p, hw)
             masks = MaskCandidates(stack, np.array([i for i, _ in items], np.int32))
         return View(frame=frame, rgb=rgb, camera=cam, depth=depth, masks=masks, name=ipath.name)
 

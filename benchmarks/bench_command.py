@@ -1,0 +1,244 @@
+"""Benchmark ``clutt3r segment`` as a whole process, and the core in-process, against a baseline commit.
+
+Usage::
+
+    .venv/bin/python benchmarks/bench_command.py [--base dfdac67] [--runs 3] [--work /tmp/clutt3r-bench-command]
+        [--scenes hard:0] [--samples sample_seq4] [--no-base] [--out results.json]
+
+Issue 13 measured the whole command, not only the core: on a hard 640x480 8-view scene it
+took 4.1 s (1.9 s importing: the command table imported every command's module and the
+normals imported open3d, whose package init loads its plotly/dash visualisation), and
+on sample_seq4 (1920x1080, 8 views) 9.2 s with a 957 MiB peak. Targets, as whole processes:
+<= 2 s at 640x480, <= 4 s and <= 600 MiB at 1920x1080; the core <= 1 s at 640x480.
+
+For every scene (generated ones, ``clutt3r synth --preset P --seed S``, cached under
+``--work``; then the real samples that are present) and for both code trees (this checkout
+and ``--base``, checked out with ``git worktree add`` under ``--work``, run with this
+checkout's virtual environment and ``PYTHONPATH`` set to the tree), it measures:
+
+- whole: ``python -m clutt3r_core.cli segment SCENE --out RUN`` (what the ``clutt3r``
+  script runs) as a subprocess: wall time, CPU time (user + sys) and peak resident set
+  (``os.wait4``'s ``ru_maxrss`` of that child), median over ``--runs`` (max for the RSS);
+  base and current runs alternate, so both see the same machine load;
+- core: ``segment(load_scene(SCENE))`` in one fresh process per tree: the first call (it
+  pays the lazy imports: scipy.spatial, and open3d in the baseline) and the median of
+  ``--runs`` further calls, wall and CPU; mask generation is not involved (the scenes have
+  mask candidates);
+- same: whether the two trees' ``instances.npz`` instance labels are identical.
+
+CPU time is the fairer number on a loaded machine (the segment command is mostly one
+thread): on the project's shared 2-core machine wall times vary 2-3x with other jobs.
+Prints a markdown table with current / base ratios; ``--out`` writes the raw numbers.
+
+The old checkout's CLI is started through a small harness that skips entry-point commands
+(``clutt3r.commands``, from the installed package metadata) whose function the old tree
+does not have yet; their modules are still imported, as the old ``clutt3r`` would.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLES = ROOT.parent / "shared" / "data" / "clutt3r-samples"
+BASE_REF = "dfdac67"  # main before the issue-13 speed work (lazy CLI, normals without open3d)
+TARGETS = {  # whole-process wall s, core wall s, peak RSS MiB (issue 13)
+    "generated": (2.0, 1.0, None),
+    "sample_seq4": (4.0, None, 600.0),
+}
+
+_CLI_HARNESS = """
+import sys
+import clutt3r_core.cli as cli
+_load = cli._load
+def _tolerant(target):
+    try:
+        return _load(target)
+    except AttributeError:  # an installed entry point that this (older) tree does not define
+        return None
+cli._load = _tolerant
+cli.main(sys.argv[1:])
+"""
+
+_CORE_HARNESS = """
+import json, sys, time
+from clutt3r_core.io import load_scene
+from clutt3r_core.pipeline import segment
+scene = load_scene(sys.argv[1])
+out = []
+for _ in range(int(sys.argv[2]) + 1):
+    w, c = time.perf_counter(), time.process_time()
+    segment(scene)
+    out.append((time.perf_counter() - w, time.process_time() - c))
+print("CORE=" + json.dumps(out))
+"""
+
+
+def _run_child(cmd: list[str], cwd: Path, env: dict) -> dict:
+    """Like subprocess.run, but with the child's own rusage (os.wait4), not the sum of all children."""
+    r, w = os.pipe()
+    t0 = time.perf_counter()
+    pid = os.fork()
+    if pid == 0:  # child: stdout/stderr to the pipe, then exec
+        try:
+            os.close(r)
+            os.dup2(w, 1)
+            os.dup2(w, 2)
+            os.chdir(cwd)
+            os.execve(cmd[0], cmd, env)
+        finally:
+            os._exit(127)
+    os.close(w)
+    chunks = []
+    while True:
+        b = os.read(r, 1 << 16)
+        if not b:
+            break
+        chunks.append(b)
+    os.close(r)
+    _, status, ru = os.wait4(pid, 0)
+    wall = time.perf_counter() - t0
+    return {
+        "rc": os.waitstatus_to_exitcode(status),
+        "wall": wall,
+        "cpu": ru.ru_utime + ru.ru_stime,
+        "rss_mib": ru.ru_maxrss / 1024.0,  # Linux: KiB
+        "output": b"".join(chunks).decode(errors="replace"),
+    }
+
+
+def _env(tree: Path) -> dict:
+    env = {k: v for k, v in os.environ.items() if k not in ("CLUTT3R_DEBUG",)}
+    env["PYTHONPATH"] = str(tree)
+    env["PYTHONDONTWRITEBYTECODE"] = "1"
+    return env
+
+
+def _base_tree(ref: str, work: Path) -> Path:
+    sha = subprocess.run(["git", "rev-parse", ref], cwd=ROOT, capture_output=True, text=True, check=True).stdout.strip()
+    tree = work / f"base-{sha[:12]}"
+    if not (tree / "clutt3r_core").is_dir():
+        subprocess.run(["git", "worktree", "add", "--detach", str(tree), sha], cwd=ROOT, check=True,
+                       capture_output=True)
+    return tree
+
+
+def _scenes(args, work: Path) -> list[tuple[str, str, Path]]:
+    """(label, kind for the targets, folder) of every scene to run; generates missing ones."""
+    out = []
+    for spec in args.scenes:
+        preset, _, seed = spec.partition(":")
+        folder = work / "scenes" / f"{preset}_{seed or 0}"
+        if not (folder / "transforms.json").is_file():
+            subprocess.run([sys.executable, "-m", "clutt3r_core.cli", "synth", "--out", str(folder),
+                            "--preset", preset, "--seed", seed or "0"], cwd=ROOT, check=True, env=_env(ROOT))
+        out.append((f"{preset} seed {seed or 0} (640x480, 8 views)", "generated", folder))
+    for name in args.samples:
+        folder = SAMPLES / name
+        if folder.is_dir():
+            out.append((f"{name} (real)", name, folder))
+        else:
+            print(f"skipped {name}: {folder} is absent", file=sys.stderr)
+    return out
+
+
+def _same_instances(a: Path, b: Path) -> bool | None:
+    import numpy as np
+
+    try:
+        with np.load(a / "instances.npz") as x, np.load(b / "instances.npz") as y:
+            return bool(np.array_equal(x["instance"], y["instance"]) and np.array_equal(x["scores"], y["scores"]))
+    except OSError:
+        return None
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--base", default=BASE_REF, help="git ref of the baseline tree")
+    ap.add_argument("--no-base", action="store_true", help="measure this checkout only")
+    ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--work", type=Path, default=Path("/tmp/clutt3r-bench-command"))
+    ap.add_argument("--scenes", nargs="*", default=["hard:0"], help="generated scenes, PRESET:SEED")
+    ap.add_argument("--samples", nargs="*", default=["sample_seq4"])
+    ap.add_argument("--no-core", action="store_true", help="whole processes only")
+    ap.add_argument("--out", type=Path, default=None, help="JSON file of the raw numbers")
+    args = ap.parse_args()
+    args.work.mkdir(parents=True, exist_ok=True)
+    trees = {"current": ROOT}
+    if not args.no_base:
+        trees = {"base": _base_tree(args.base, args.work), "current": ROOT}
+    py = sys.executable
+    results = []
+    for label, kind, folder in _scenes(args, args.work):
+        row = {"scene": label, "kind": kind, "whole": {t: [] for t in trees}, "core": {}}
+        for i in range(args.runs):
+            for t, tree in trees.items():  # alternate the trees: same load for both
+                run_dir = args.work / "runs" / f"{folder.name}_{t}"
+                shutil.rmtree(run_dir, ignore_errors=True)
+                r = _run_child([py, "-c", _CLI_HARNESS, "segment", str(folder), "--out", str(run_dir)], tree, _env(tree))
+                if r["rc"] != 0:
+                    raise SystemExit(f"{t} failed on {folder}:\n{r['output'][-3000:]}")
+                row["whole"][t].append({k: r[k] for k in ("wall", "cpu", "rss_mib")})
+                print(f"{label} {t} run {i}: {r['wall']:.2f} s wall, {r['cpu']:.2f} s CPU, {r['rss_mib']:.0f} MiB",
+                      file=sys.stderr)
+        if len(trees) == 2:
+            row["same_instances"] = _same_instances(*(args.work / "runs" / f"{folder.name}_{t}" for t in trees))
+        if not args.no_core:
+            for t, tree in trees.items():
+                r = _run_child([py, "-c", _CORE_HARNESS, str(folder), str(args.runs)], tree, _env(tree))
+                line = [x for x in r["output"].splitlines() if x.startswith("CORE=")]
+                if r["rc"] != 0 or not line:
+                    raise SystemExit(f"{t} core failed on {folder}:\n{r['output'][-3000:]}")
+                calls = json.loads(line[0][5:])
+                row["core"][t] = {"first": calls[0], "warm": calls[1:]}
+        results.append(row)
+    _print_table(results, list(trees))
+    if args.out:
+        args.out.write_text(json.dumps({"trees": {t: str(p) for t, p in trees.items()}, "base_ref": args.base,
+                                        "runs": args.runs, "results": results}, indent=1))
+
+
+def _print_table(results: list[dict], trees: list[str]) -> None:
+    med = statistics.median
+    has_base = "base" in trees
+    head = "| scene | measure | " + (" base | current | current / base |" if has_base else " current |") + " target |"
+    print(head)
+    print("|" + "---|" * (head.count("|") - 1))
+
+    def line(scene: str, what: str, vals: dict, fmt: str, target: float | None) -> None:
+        cells = [fmt.format(vals[t]) for t in trees]
+        if has_base:
+            cells.append(f"{vals['current'] / vals['base']:.2f}" if vals["base"] else "–")
+        tgt = "–" if target is None else f"<= {target:g}" + (" " + ("met" if vals["current"] <= target else "missed"))
+        print(f"| {scene} | {what} | " + " | ".join(cells) + f" | {tgt} |")
+
+    for row in results:
+        t_whole, t_core, t_rss = TARGETS.get(row["kind"], (None, None, None))
+        w = row["whole"]
+        line(row["scene"], "whole command, wall s (median)", {t: med(x["wall"] for x in w[t]) for t in trees}, "{:.2f}",
+             t_whole)
+        line(row["scene"], "whole command, CPU s (median)", {t: med(x["cpu"] for x in w[t]) for t in trees}, "{:.2f}",
+             t_whole)
+        line(row["scene"], "whole command, peak RSS MiB (max)", {t: max(x["rss_mib"] for x in w[t]) for t in trees},
+             "{:.0f}", t_rss)
+        if row["core"]:
+            c = row["core"]
+            line(row["scene"], "core, first call wall s", {t: c[t]["first"][0] for t in trees}, "{:.2f}", None)
+            line(row["scene"], "core, warm wall s (median)", {t: med(x[0] for x in c[t]["warm"]) for t in trees},
+                 "{:.2f}", t_core)
+            line(row["scene"], "core, warm CPU s (median)", {t: med(x[1] for x in c[t]["warm"]) for t in trees},
+                 "{:.2f}", t_core)
+        if "same_instances" in row:
+            print(f"| {row['scene']} | instances identical to base | {row['same_instances']} | | | |")
+
+
+if __name__ == "__main__":
+    main()
