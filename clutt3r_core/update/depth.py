@@ -60,14 +60,23 @@ class PlaceCheck:
     agree: np.ndarray
     farther: np.ndarray
     nearer: np.ndarray
+    visible: np.ndarray | None = None
+    """(K,) int64 visible stored points (with or without valid depth at their pixel)."""
 
     def fraction(self, i: int) -> float:
         """agree / (agree + farther) of row i (NaN when no point could be compared)."""
         n = self.agree[i] + self.farther[i]
         return float(self.agree[i] / n) if n else float("nan")
 
-    def judged(self, i: int, min_points: int) -> bool:
-        return int(self.agree[i] + self.farther[i]) >= min_points
+    def judged(self, i: int, min_points: int, min_valid: float = 0.5) -> bool:
+        """At least ``min_points`` compared, and at least ``min_valid`` of the visible points
+        have depth (an old place seen as a depth hole says nothing, however few points agree)."""
+        n = int(self.agree[i] + self.farther[i])
+        if n < min_points:
+            return False
+        if self.visible is None:
+            return True
+        return n + int(self.nearer[i]) >= min_valid * int(self.visible[i])
 
 
 def _depth_at(depth: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -89,9 +98,9 @@ def place_check(points: np.ndarray, instance: np.ndarray, ids: np.ndarray, camer
     pts, lab = points[sel], instance[sel]
     s = splat(pts, camera, voxel)
     K = len(ids)
-    agree, farther, nearer = (np.zeros(K, np.int64) for _ in range(3))
+    agree, farther, nearer, visible = (np.zeros(K, np.int64) for _ in range(4))
     if not (s.h and s.w):
-        return PlaceCheck(ids, agree, farther, nearer)
+        return PlaceCheck(ids, agree, farther, nearer, visible)
     inside = s.centre >= 0
     zb = s.zbuf.reshape(-1)[np.maximum(s.centre, 0)]
     vis = inside & (s.z <= zb + OCCLUSION_MARGIN)
@@ -106,7 +115,8 @@ def place_check(points: np.ndarray, instance: np.ndarray, ids: np.ndarray, camer
     agree[:] = np.bincount(li[a], minlength=K)
     farther[:] = np.bincount(li[f], minlength=K)
     nearer[:] = np.bincount(li[n], minlength=K)
-    return PlaceCheck(ids, agree, farther, nearer)
+    visible[:] = np.bincount(li[vis], minlength=K)
+    return PlaceCheck(ids, agree, farther, nearer, visible)
 
 
 def explained_pixels(points: np.ndarray, instance: np.ndarray, ids: np.ndarray, camera: Camera,

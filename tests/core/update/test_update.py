@@ -4,6 +4,7 @@ the new state and its chain, update.json, and the CLI with an outside image."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +28,7 @@ from ._scenes import camera, render_view, two_box_scene, yaw_motion
 
 FAST = UpdateConfig(pose=PoseConfig(coarse=StageConfig(50.0, 0.5, 10.0, 40), fine=StageConfig(10.0, 2.0, 1.0, 20),
                                     yaw_starts_deg=(0.0, 40.0), probe_iterations=8, dof="yaw"))
+PAPER = replace(FAST, change=replace(FAST.change, use_depth=False))
 NEW_CAM = dict(eye=(0.12, -0.42, 0.42))  # the post view is not one of the initial views
 
 
@@ -73,7 +75,8 @@ def test_displaced_object_is_moved_and_the_update_chains(tmp_path):
     c = st.points_of(0).astype(np.float64).mean(axis=0)
     T = yaw_motion(25.0, (0.0, -0.05, 0.0), c)
     details = UpdateDetails()
-    res = update_scene(st, _post(T0=T), FAST, details=details)
+    # the paper's path (no depth cues: test_depth.py covers those): found by embedding
+    res = update_scene(st, _post(T0=T), PAPER, details=details)
     r0 = res.record(0)
     assert r0.status == "displaced" and r0.match == "semantic"  # its projection moved away: found by embedding
     assert res.record(1).status == "static"
@@ -94,9 +97,9 @@ def test_displaced_object_is_moved_and_the_update_chains(tmp_path):
     assert set(doc["instances"][0]) == {"instance", "status", "iou_before", "iou_after", "T_world"}
     assert doc["instances"][1]["T_world"] is None and np.asarray(doc["instances"][0]["T_world"]).shape == (4, 4)
     # update 2 from state 1: the same view again changes nothing; then object 1 is grasped
-    res2 = update_scene(back, _post(T0=T, frame=9), FAST)
+    res2 = update_scene(back, _post(T0=T, frame=9), PAPER)
     assert [r.status for r in res2.instances] == ["static", "static"]
-    res3 = update_scene(back, _post(T0=T, remove=1, frame=9), FAST)
+    res3 = update_scene(back, _post(T0=T, remove=1, frame=9), PAPER)
     assert res3.record(1).status == "removed" and res3.record(0).status == "static"
     s2 = apply_update(back, res3)
     save_state(s2, tmp_path / "updates" / "02_frame_000009", res3)
