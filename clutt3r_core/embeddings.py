@@ -116,15 +116,22 @@ class AppearanceEmbedder:
         lut_v = ((self.hue_bins + 1) * self.sat_bins + np.arange(256) * self.val_bins // 256).astype(np.int32)
         joint = lut_joint[(hsv[:, 0].astype(np.int32) << 8) | hsv[:, 1]]
         vb = lut_v[hsv[:, 2]]
+        del hsv
         d = self.dim
         # Histograms per distinct set of containing masks (a few hundred codes instead of
         # a gather over every mask pixel), summed into each mask by bits.T @ per-code
         # histograms. Counts are integers, so the result is exactly the per-mask count.
         label, bits = mask_codes(masks.reshape(m, -1))
         c = len(bits)
-        key = label * d
-        per_code = np.bincount(key + joint, minlength=c * d).astype(np.float64)
-        per_code += np.bincount(key + vb, minlength=c * d)
+        # one reused int32 key array (int64 temporaries were 3 x 16 MiB per 1080p view)
+        key = label.astype(np.int32 if c * d < 2**31 else np.int64)
+        del label
+        key *= d
+        key += joint
+        per_code = np.bincount(key, minlength=c * d).astype(np.float64)
+        key -= joint
+        key += vb
+        per_code += np.bincount(key, minlength=c * d)
         hist = bits.T.astype(np.float64) @ per_code.reshape(c, d)
         hist = hist.reshape(m, d)
         hist = np.sqrt(hist)

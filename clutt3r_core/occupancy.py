@@ -54,14 +54,13 @@ def _view_pixels(cloud: FusedCloud, view_index: int) -> tuple[np.ndarray, np.nda
     """(flat pixel indices (P,) int64, voxel (P,) int64) of the pixels of a view that fed a voxel."""
     if not 0 <= view_index < len(cloud.pixel_voxel):
         raise SceneError(f"view index {view_index} out of range 0..{len(cloud.pixel_voxel) - 1}")
-    pv = cloud.pixel_voxel[view_index].reshape(-1)
-    pix = np.flatnonzero(pv >= 0)
-    return pix, pv[pix].astype(np.int64)
+    pix, vox = cloud.pixel_voxel.pixels(view_index)  # the fed pixels, without the dense (H, W) map
+    return pix.astype(np.int64), vox.astype(np.int64)
 
 
 def _check_masks(cloud: FusedCloud, view_index: int, masks: np.ndarray) -> np.ndarray:
     masks = np.asarray(masks)
-    shape = cloud.pixel_voxel[view_index].shape if 0 <= view_index < len(cloud.pixel_voxel) else None
+    shape = cloud.pixel_voxel.shapes[view_index] if 0 <= view_index < len(cloud.pixel_voxel) else None
     if masks.ndim != 3 or (shape is not None and masks.shape[1:] != shape):
         raise SceneError(
             f"masks of frame {cloud.frames[view_index] if shape else view_index} must be (M, H, W) with"

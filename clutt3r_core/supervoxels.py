@@ -256,18 +256,18 @@ def fit_plane_ransac(
 
 
 def _knn_edges(points: np.ndarray, k: int, max_dist: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Directed k-NN pairs (i, j, ||x_i - x_j||) with distance <= max_dist, self excluded."""
+    """Directed k-NN pairs (i, j int32, ||x_i - x_j|| float64) with distance <= max_dist, self excluded."""
     from scipy.spatial import cKDTree
 
     n = points.shape[0]
     kq = min(k + 1, n)
     dist, idx = cKDTree(points).query(points, k=kq, distance_upper_bound=max_dist, workers=-1)
-    dist, idx = dist.reshape(n, kq), idx.reshape(n, kq)
-    src = np.repeat(np.arange(n), kq)
+    # int32 pairs (issue 13, 1080p memory): the edge arrays are the stage's largest
+    src = np.repeat(np.arange(n, dtype=np.int32), kq)
     dst = idx.reshape(-1)
-    dd = dist.reshape(-1)
     ok = (dst < n) & (dst != src)
-    return src[ok], dst[ok], dd[ok]
+    del idx
+    return src[ok], dst[ok].astype(np.int32), dist.reshape(-1)[ok]
 
 
 def _components(n: int, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
