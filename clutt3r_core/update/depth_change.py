@@ -130,7 +130,7 @@ def depth_changes(state, view: View, config: UpdateConfig, assoc: Association, s
             if reg is None or reg.fitness < cc.accept_fitness or reg.consistency < cc.accept_consistency:
                 continue
             iou = fit_iou(model, reg.T_world, cam, voxel, occ, rest)
-            if iou >= cc.accept_iou:
+            if iou >= (cc.accept_iou if k in moved else cc.accept_iou_hidden):
                 found.append((reg.score * iou, k, mi, reg, iou))
     used_k, used_m = set(), set()
     # moved instances first (their old place is seen empty: they are somewhere), then the

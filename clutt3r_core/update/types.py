@@ -226,6 +226,10 @@ class ChangeConfig:
     """Ours: ... and the moved instance's visible projection overlaps the mask's unexplained
     part (the mask minus the pixels showing in-place instances) by this IoU (a small patch of
     another object fits anywhere on a large instance; this rejects it)."""
+    accept_iou_hidden: float = 0.5
+    """Ours: ``accept_iou`` for an instance whose old place the depth cannot see (no evidence
+    that it moved): measured on seed 200, a static instance hidden at its old place fitted a
+    neighbour's mask at IoU 0.44."""
     min_rest_fraction: float = 0.5
     """Ours: a mask candidate is registered only when at least this fraction of its valid-depth
     pixels is not explained by in-place instances (most masks are static objects' own)."""

@@ -154,6 +154,12 @@ def update_scene(
                     instance=k, points=state.points[sel], colors=state.colors[sel], camera=cam, rgb=view.rgb,
                     mask=m_k, occluder_depth=occ_proj.depth, depth=view.depth, voxel_size=voxel, T_init=T))
                 T = res.T_world
+            if k not in dc.moved and config.change.verify and not _moved(
+                    replace(res, T_world=T), state.points[sel].astype(np.float64).mean(axis=0), -1.0, config):
+                # hidden at its old place, found (nearly) there in the new view: it did not move
+                records.append(InstanceUpdate(k, "static", ib, ib, None, int(masks.ids[fit.mask_index]),
+                                              "depth-registration", pose=res))
+                continue
             ia = fit_iou(state.points[sel], T, cam, voxel, occ_proj.depth, m_k)
             new_mask[k] = m_k
             records.append(InstanceUpdate(k, "displaced", ib, ia, T, int(masks.ids[fit.mask_index]),
