@@ -12,15 +12,19 @@ views, run ``update_scene`` on the post view, and score against ``gt/interaction
   visible in the post view, >= 200 px of the GT map);
 - static flagged: instances of untouched objects reported displaced or removed;
 - pose error of the displaced object's main instance: rotation angle of R_est R_gt^T (deg) and
-  distance between the instance centroid moved by the estimate and by the truth (cm); and the
-  symmetry-aware ADD-S (mean distance of each estimated point to the nearest true point, cm),
-  because a can or a ball turned about its axis looks the same from every yaw;
+  distance between the instance centroid moved by the estimate and by the truth (cm); the
+  rotation error up to the object's symmetries (``sym_rot_err_deg``: symmetries found on the
+  GT surface points, ``symmetries`` / ``symmetry_axes``; a ball counts 0, a can only its axis
+  direction); and the symmetry-aware ADD-S (mean distance of each estimated point to the
+  nearest true point, cm), because a can or a ball turned about its axis looks the same from
+  every yaw;
 - IoU before/after of that instance, and wall and CPU time per update (the whole ``update_scene``;
   CPU time is the fair number on a shared machine: torch runs on one thread).
 
 Usage::
 
-    .venv/bin/python benchmarks/bench_update.py --out /tmp/bench_update [--pairs 12] [--no-depth]
+    .venv/bin/python benchmarks/bench_update.py --out /tmp/bench_update [--pairs 12] [--seed0 100] \
+        [--embedder run] [--no-depth] [--no-depth-cues] [--refine-registration]
 
 Scenes and runs are cached under ``--out`` (delete to regenerate). Prints a markdown table and
 writes ``results.json`` and one overlay PNG per pair.
