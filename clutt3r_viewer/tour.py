@@ -16,7 +16,7 @@ import numpy as np
 from clutt3r_viewer.camera import CameraPose, default_camera
 from clutt3r_viewer.data import ViewerData
 
-__all__ = ["TourStep", "TourFacts", "STEPS", "step_camera", "tree_view", "tree_node", "replay_event", "facts_of"]
+__all__ = ["TourStep", "TourFacts", "STEPS", "step_camera", "focus_points", "tree_view", "tree_node", "replay_event", "facts_of"]
 
 CameraTarget = Literal["overview", "view", "target", "displaced"]
 Needs = Literal["", "query", "grasps", "update", "pose"]
@@ -136,9 +136,10 @@ def _look(eye: np.ndarray, at: np.ndarray, fov: float) -> CameraPose:
     return CameraPose(look_at=np.asarray(at, float), position=np.asarray(eye, float), fov=float(fov))
 
 
-def step_camera(data: ViewerData, step: TourStep, view: int, focus: int) -> CameraPose:
-    """The camera of ``step``: ``view`` is the step's view, ``focus`` the instance to look at
-    (the query target or the displaced object; -1 = the whole pile)."""
+def step_camera(data: ViewerData, step: TourStep, view: int, focus: np.ndarray | None = None) -> CameraPose:
+    """The camera of ``step``: ``view`` is the step's view, ``focus`` (K, 3) world points to frame
+    for the "target" and "displaced" cameras (the query's target; the pushed object before and
+    after its motion), None = the whole pile."""
     base = default_camera(data)
     look = np.asarray(base.look_at, float)
     if step.camera == "view" and data.views:
@@ -151,18 +152,27 @@ def step_camera(data: ViewerData, step: TourStep, view: int, focus: int) -> Came
         d = R @ d
         d *= np.linalg.norm(base.position - look) / max(np.linalg.norm(d), 1e-9)
         return _look(look + d, look, base.fov)
-    if step.camera in ("target", "displaced") and focus >= 0:
-        sel = data.seg.instance == focus
-        if sel.any():
-            pts = data.seg.points[sel]
-            c = np.median(pts, axis=0)
-            r = float(np.percentile(np.linalg.norm(pts - c, axis=1), 95))
-            d = base.position - look
-            d = d / np.linalg.norm(d)
-            # the object fills about a third of the view height: its neighbours stay in sight
-            dist = max(0.3, 3.0 * r / np.tan(base.fov / 2))
-            return _look(c + dist * d, c, base.fov)
+    if step.camera in ("target", "displaced") and focus is not None and len(focus):
+        pts = np.asarray(focus, float)
+        c = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+        r = float(np.percentile(np.linalg.norm(pts - c, axis=1), 98))
+        d = base.position - look
+        d = d / np.linalg.norm(d)
+        # the object fills about a third of the view height: its neighbours stay in sight
+        dist = max(0.35, 3.0 * r / np.tan(base.fov / 2))
+        return _look(c + dist * d, c, base.fov)
     return base
+
+
+def focus_points(data: ViewerData, instance: int, moved: np.ndarray | None = None) -> np.ndarray | None:
+    """(K, 3) the points the camera frames for ``instance``: its run points, plus ``moved`` (its
+    points after a motion) when given; None for no instance."""
+    if instance < 0:
+        return None
+    pts = data.seg.points[data.seg.instance == instance]
+    if moved is not None and len(moved):
+        pts = np.concatenate([pts, np.asarray(moved, pts.dtype)])
+    return pts if len(pts) else None
 
 
 def facts_of(data: ViewerData, story, view: int, node: int, event: int, pose_steps: int) -> TourFacts:
@@ -183,9 +193,17 @@ def facts_of(data: ViewerData, story, view: int, node: int, event: int, pose_ste
                     "others are kept." if removed else "No instance was found removed.")
     if story is not None and story.true_removed >= 0 and story.true_removed not in removed:
         removed_text += f" (The object taken away was I{story.true_removed}: the update missed it.)"
-    disp = displaced[0] if displaced else -1
-    displaced_text = (f"I{disp} was pushed: its pose is re-fitted to the new image (chamfer, photometric and "
-                      "height losses)." if disp >= 0 else "No instance was found displaced.")
+    # the camera follows the pushed object when the ground truth names it and the update re-posed it
+    known = story.true_displaced if story is not None else -1
+    disp = known if known in displaced else (displaced[0] if displaced else -1)
+    if not displaced:
+        displaced_text = "No instance was found displaced."
+    elif len(displaced) == 1:
+        displaced_text = (f"I{disp} was pushed: its pose is re-fitted to the new image (chamfer, photometric and "
+                          "height losses).")
+    else:
+        displaced_text = (f"The update re-posed I{', I'.join(map(str, displaced))} (a static object can be flagged "
+                          f"too, docs/update.md); the camera follows I{disp}.")
     lab = f"frame {int(tr.frames[view])}, mask {int(tr.nodes.mask_id[node])}" if node >= 0 else "none"
     return TourFacts(
         n_views=len(tr.frames), view=view, node=lab, event=event, n_events=len(tr.grouping.events),

@@ -16,7 +16,7 @@ from clutt3r_viewer.panels.query import QueryPanel
 from clutt3r_viewer.panels.replay import ReplayPanel
 from clutt3r_viewer.panels.scene import InstancesPanel, ScenePanel
 from clutt3r_viewer.panels.tree import TreePanel
-from clutt3r_viewer.panels.tour import TourPanel
+from clutt3r_viewer.panels.tour import ShareHtmlPanel, TourPanel
 from clutt3r_viewer.panels.updates import UpdatesPanel
 import clutt3r_viewer.panels.update_sources  # noqa: E402,F401  (registers the update chain's frames and pose replay)
 from clutt3r_viewer.panels.update_curves import UpdateCurvesPanel
@@ -24,8 +24,9 @@ from clutt3r_viewer.panels.views import ViewsPanel
 from clutt3r_viewer.panels.warnings import WarningsPanel
 
 __all__ = ["Panel", "Change", "PANELS", "ViewsPanel", "ScenePanel", "InstancesPanel", "TreePanel", "LeafGraphPanel",
-           "ReplayPanel", "QueryPanel", "EditPanel", "GraspsPanel", "UpdatesPanel", "WarningsPanel", "TourPanel"]
+           "ReplayPanel", "QueryPanel", "EditPanel", "GraspsPanel", "UpdatesPanel", "WarningsPanel", "TourPanel",
+           "ShareHtmlPanel"]
 
-PANELS: list[type[Panel]] = [ViewsPanel, WarningsPanel, ScenePanel, InstancesPanel, TreePanel, LeafGraphPanel,
+PANELS: list[type[Panel]] = [ViewsPanel, WarningsPanel, ScenePanel, InstancesPanel, ShareHtmlPanel, TreePanel, LeafGraphPanel,
                              ReplayPanel, ExplainPanel, QueryPanel, EditPanel, GraspsPanel, UpdatesPanel, UpdateCurvesPanel,
                              TourPanel]  # last: it drives the others; its folder is ordered above them

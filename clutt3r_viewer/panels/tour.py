@@ -18,15 +18,16 @@ import json
 import threading
 from typing import TYPE_CHECKING
 
+from clutt3r_viewer.camera import CameraPose
 from clutt3r_viewer.panels.base import Change, Panel
-from clutt3r_viewer.tour import STEPS, TourStep, facts_of, replay_event, step_camera, tree_node, tree_view
+from clutt3r_viewer.tour import STEPS, TourStep, facts_of, focus_points, replay_event, step_camera, tree_node, tree_view
 
 if TYPE_CHECKING:
     import viser
 
     from clutt3r_viewer.app import Session, ViewerApp
 
-__all__ = ["TourPanel", "attach_story", "story_of", "open_tab_html", "POSE_SOURCE", "GROUPING_SOURCE"]
+__all__ = ["TourPanel", "ShareHtmlPanel", "send_html", "attach_story", "story_of", "open_tab_html", "POSE_SOURCE", "GROUPING_SOURCE"]
 
 GROUPING_SOURCE = "grouping"
 POSE_SOURCE = "scene updates: pose iterations"
@@ -80,10 +81,14 @@ def attach_story(app: "ViewerApp", story, failed: str = "") -> None:
 
 def open_tab_html(tab: str, nonce: int) -> str:
     """An invisible HTML element whose broken image runs one line of script: click the tab named
-    ``tab``. ``nonce`` makes each step's element new, so the script runs again."""
-    sel = json.dumps(tab)
+    ``tab``. ``nonce`` makes each step's element new, so the script runs again. The tabs react to
+    pointer events (a bare ``element.click()`` does not switch them), so the script sends the
+    sequence a mouse click makes."""
+    label = json.dumps(tab).replace('"', "&quot;")
     js = ("var t=Array.from(document.querySelectorAll('[role=tab]')).find(function(b){return b.textContent.trim()==="
-          + sel.replace('"', "&quot;") + "});if(t&&t.getAttribute('aria-selected')!=='true')t.click();")
+          + label + "});if(t&&t.getAttribute('aria-selected')!=='true'){['pointerdown','mousedown','pointerup',"
+          "'mouseup','click'].forEach(function(n){var E=n.indexOf('pointer')==0?PointerEvent:MouseEvent;"
+          "t.dispatchEvent(new E(n,{bubbles:true,cancelable:true,button:0,isPrimary:true,pointerId:1,view:window}))})}")
     return f'<img alt="" style="display:none" src="data:image/png;base64,{nonce}" onerror="{js}">'
 
 
@@ -103,6 +108,7 @@ class TourPanel(Panel):
     step: int = 0
     exploring: bool = False
     applied: int = 0  # steps applied (tests wait on it)
+    camera: "CameraPose | None" = None  # the current step's camera
 
     @classmethod
     def available(cls, app: "ViewerApp") -> bool:
@@ -137,8 +143,20 @@ class TourPanel(Panel):
         # that is overwritten by the client's initial one)
         while not s.closed and time.time() - t0 < 30 and (not s.built or s.client.camera.update_timestamp == 0.0):
             time.sleep(0.05)
-        if not s.closed:
-            self.go(s, 0)
+        if s.closed:
+            return
+        self.go(s, 0)
+        # A browser that just connected may still apply its initial camera after ours (seen in headless
+        # chromium under load): for a few seconds, put the step's camera back when the reported one differs.
+        t1 = time.time()
+        while not s.closed and time.time() - t1 < 4.0 and self.step == 0 and not self.exploring:
+            time.sleep(0.3)
+            want = self.camera
+            cam = s.client.camera
+            if want is not None and (abs(cam.look_at - want.look_at).max() > 1e-3
+                                     or abs(cam.position - want.position).max() > 1e-3):
+                with s.lock:
+                    self._set_camera(s, want)
 
     # -- actions -------------------------------------------------------------------------
 
@@ -170,11 +188,7 @@ class TourPanel(Panel):
         self.resume.visible = self.exploring
 
     def send_html(self, s: "Session") -> None:
-        from clutt3r_viewer.export_html import scene_html
-
-        name = (s.app.data.seg.scene_name or "clutt3r_run").replace("/", "_")
-        html = scene_html(s.app.data, s.app.instance_labels())
-        s.client.send_file_download(f"{name}.html", html.encode("utf-8"), save_immediately=True)
+        send_html(s)
 
     # -- one step --------------------------------------------------------------------------
 
@@ -202,7 +216,7 @@ class TourPanel(Panel):
             s.select_view(view)
         if node >= 0:
             s.select_node(node)
-        focus = -1
+        focus = None
         if not waiting:
             if step.key == "replay":
                 p = s.panel(ReplayPanel)
@@ -216,10 +230,10 @@ class TourPanel(Panel):
                         p.query.value = facts.query  # its on_update runs the query
                     elif s.state.query != facts.query or s.state.query_best < 0:
                         p.run_query(s, facts.query)
-                focus = s.state.query_best if s.state.query_best >= 0 else facts.target
+                focus = focus_points(d, s.state.query_best if s.state.query_best >= 0 else facts.target)
             elif step.key == "grasps":
                 self._grasps(s, facts.target)
-                focus = facts.target
+                focus = focus_points(d, facts.target)
             elif step.key == "removed":
                 p = s.panel(UpdatesPanel)
                 if p is not None:
@@ -229,7 +243,7 @@ class TourPanel(Panel):
                 if p is not None and src is not None:
                     p.set_source(s, POSE_SOURCE)
                     p.set_event(s, src.num_events)
-                focus = facts.displaced
+                focus = self.pose_focus(d, src, facts.displaced)
         g = s.panel(GraspsPanel)
         if g is not None:  # the grasps belong to their step (and to the object taken away afterwards)
             for h in (g.all, g.selected, g.region, g.contacts):
@@ -242,15 +256,30 @@ class TourPanel(Panel):
         if step.key == "grasps" and "query" not in names:
             colour = "instance"
         s.set_color_mode(colour)
-        pose = step_camera(d, step, view, focus)
-        cam = s.client.camera
-        cam.fov = pose.fov
-        cam.position = pose.position  # position first, as Session._set_camera does
-        cam.look_at = pose.look_at
+        self.camera = step_camera(d, step, view, focus)
+        self._set_camera(s, self.camera)
         self.title.content = f"**{step.title}**  ({self.step + 1}/{len(STEPS)})"
         self.text.content = waiting or step.text.format(**facts.__dict__)
         if step.tab is not None:
             self.tab_opener.content = open_tab_html(step.tab, self.applied)
+
+    @staticmethod
+    def _set_camera(s: "Session", pose) -> None:
+        cam = s.client.camera
+        cam.fov = pose.fov
+        cam.position = pose.position  # position first, as Session._set_camera does
+        cam.look_at = pose.look_at
+
+    @staticmethod
+    def pose_focus(d, src, k: int):
+        """The displaced instance's points before and after its motion (the replay's last step)."""
+        import numpy as np
+
+        if src is None or k < 0:
+            return None
+        idx = np.flatnonzero(d.seg.instance == k)
+        moved = src.points(src.num_events, idx)
+        return focus_points(d, k, moved)
 
     def _grasps(self, s: "Session", target: int) -> None:
         """Target the query's instance in the Grasps tab, plan when the run's grasps are for another
@@ -270,6 +299,34 @@ class TourPanel(Panel):
 
     def refresh(self, s: "Session", change: Change) -> None:
         pass
+
+
+def send_html(s: "Session") -> None:
+    """Send this tab the run as a standalone page (``export_html``), with the labels it shows."""
+    from clutt3r_viewer.export_html import scene_html
+
+    name = (s.app.data.seg.scene_name or "clutt3r_run").replace("/", "_")
+    note = s.client.add_notification("Download HTML", "writing the page ...", loading=True, with_close_button=False)
+    try:
+        html = scene_html(s.app.data, s.app.instance_labels())
+    except Exception as e:  # noqa: BLE001  (shown; the viewer keeps running)
+        note.body, note.loading, note.with_close_button = f"failed: {type(e).__name__}: {e}", False, True
+        return
+    s.client.send_file_download(f"{name}.html", html.encode("utf-8"), save_immediately=True)
+    note.body, note.loading, note.with_close_button, note.auto_close_seconds = (
+        f"{name}.html: {len(html) / 1e6:.1f} MB, opens without a server", False, True, 5.0)
+
+
+class ShareHtmlPanel(Panel):
+    """The Scene tab's "Download HTML" (every run, with or without a tour)."""
+
+    tab = "Scene"
+    download: "viser.GuiButtonHandle"
+
+    def build(self, s: "Session") -> None:
+        self.download = s.client.gui.add_button("Download HTML", hint="the cloud, instances and grasps as one page "
+                                                "that opens without a server (clutt3r export-html)")
+        self.download.on_click(lambda ev: send_html(s))
 
 
 def _available(s: "Session"):

@@ -44,7 +44,7 @@ def _camera(sess) -> tuple[np.ndarray, np.ndarray]:
 def test_the_tour_walks_the_whole_story(browser, tour_app, artifacts):  # noqa: F811
     from clutt3r_viewer.panels import GraspsPanel
     from clutt3r_viewer.panels.tour import GROUPING_SOURCE, POSE_SOURCE, TourPanel
-    from clutt3r_viewer.tour import STEPS, replay_event, step_camera, tree_node, tree_view
+    from clutt3r_viewer.tour import STEPS, focus_points, replay_event, step_camera, tree_node, tree_view
 
     app = tour_app
     story = app.tour_story
@@ -71,8 +71,9 @@ def test_the_tour_walks_the_whole_story(browser, tour_app, artifacts):  # noqa: 
         _wait(lambda: _tab_selected(page, step.tab), what=f"tab {step.tab} open at step {step.key}")
         # the camera the step asked for reached the browser (it reports its camera back)
         view = 0 if step.key == "views" else tree_view(d)
-        focus = {"query": st.query_best, "grasps": story.grasp_target,
-                 "pose": story.displaced[0] if story.displaced else -1}.get(step.key, -1)
+        src = next((x for x in app.sources if x.name == POSE_SOURCE), None)
+        focus = {"query": focus_points(d, st.query_best), "grasps": focus_points(d, story.grasp_target),
+                 "pose": TourPanel.pose_focus(d, src, story.true_displaced)}.get(step.key)
         want = step_camera(d, step, view, focus)
         _wait(lambda: np.linalg.norm(_camera(sess)[1] - want.look_at) < 2e-3
               and np.linalg.norm(_camera(sess)[0] - want.position) < 2e-3, what=f"camera of step {step.key}")
@@ -121,6 +122,14 @@ def test_the_tour_walks_the_whole_story(browser, tour_app, artifacts):  # noqa: 
     assert sess.state.color_mode == "replay" and tour.step == len(STEPS) - 1
     page.get_by_role("button", name="Previous").click()
     _wait(lambda: tour.step == len(STEPS) - 2, what="previous")
+
+    # the tour's Download HTML: the standalone page of the run, as a file download
+    with page.expect_download(timeout=60_000) as dl:
+        page.get_by_role("button", name="Download HTML").first.click()
+    path = dl.value.path()
+    assert dl.value.suggested_filename.endswith(".html")
+    html = open(path, encoding="utf-8").read()
+    assert "__VISER_EMBED_DATA__" in html and len(html) > 100_000
     page.close()
 
 
