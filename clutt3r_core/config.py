@@ -79,17 +79,20 @@ class Addition:
     what: str
     """One line: what the rule does."""
     fields: tuple[tuple[str, Any, Any], ...]
+    needs: tuple[str, ...] = ()
+    """Keys of the additions this one reads (the support flags): ``paper_with`` switches them on
+    too, since without them this one has nothing to act on."""
 
 
 ADDITIONS: tuple[Addition, ...] = (
     Addition("support", "mark support super-voxels (table, tray floor, walls): RANSAC planes + extent",
              (("supervoxels.support_removal", True, False),)),
     Addition("support-not-in-spatial", "S_spatial (eq. 2) ignores support super-voxels",
-             (("grouping.spatial_excludes_support", True, False),)),
+             (("grouping.spatial_excludes_support", True, False),), needs=("support",)),
     Addition("support-unlabelled", "the vote never labels support super-voxels",
-             (("vote.label_support", False, True),)),
+             (("vote.label_support", False, True),), needs=("support",)),
     Addition("background-masks", "masks mostly on support (or without 3D points) are never grouped",
-             (("exclude_background_masks", True, False),)),
+             (("exclude_background_masks", True, False),), needs=("support",)),
     Addition("visible-occupancy", "o_i(k) over the part of super-voxel k that mask i's view sees",
              (("occupancy.normalise", "visible", "all"),)),
     Addition("one-mask-per-view", "a group holds at most one mask per view",
@@ -142,8 +145,12 @@ def ours_without(key: str) -> SegmentConfig:
 
 
 def paper_with(key: str) -> SegmentConfig:
-    """``paper`` with one addition switched on (set to ours)."""
-    return with_fields(_paper_literal(), {f: ours for f, ours, _ in _addition(key).fields})
+    """``paper`` with one addition switched on (set to ours), and the ones it ``needs``.
+
+    Support marking alone (``support``) changes nothing in ``paper``: its effects are the
+    rules that read the flags, each of which comes with the marking here."""
+    keys = [key, *_addition(key).needs]
+    return with_fields(_paper_literal(), {f: ours for k in keys for f, ours, _ in _addition(k).fields})
 
 
 def _paper_literal() -> SegmentConfig:

@@ -82,8 +82,10 @@ def ablation_tables(results, agreement: dict[str, dict[str, float]] | None = Non
     rows_o = [["**ours** (all on)", ""] + cells("ours", "ours")]
     rows_p = [["**paper** (all off)", ""] + cells("paper", "paper")]
     for a in ADDITIONS:
-        rows_o.append([f"`{a.key}` off", a.what] + cells(f"ours-no-{a.key}", "ours"))
-        rows_p.append([f"`{a.key}` on", a.what] + cells(f"paper-with-{a.key}", "paper"))
+        what = a.what.replace("|", "\\|")  # a cell of a Markdown table
+        rows_o.append([f"`{a.key}` off", what] + cells(f"ours-no-{a.key}", "ours"))
+        needs = f" (with {', '.join(f'`{n}`' for n in a.needs)})" if a.needs else ""
+        rows_p.append([f"`{a.key}` on{needs}", what] + cells(f"paper-with-{a.key}", "paper"))
     scenes = sorted({r.scene for r in results if _is_ablation(r.method)})
     md = [f"Scenes ({len(scenes)}): " + ", ".join(f"`{x}`" for x in scenes) + ". Mean over scenes of per-scene AP; "
           "Δ is against ours (first table) or the paper preset (second). "

@@ -70,7 +70,7 @@ def test_no_runner_up_that_fails_the_coverage_guard():
     assert res.sv_label.tolist() == [0, 0, 0, -1]
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=40, deadline=None)
 @given(st.integers(0, 10_000), st.integers(2, 6), st.integers(3, 12), st.integers(0, 60))
 def test_revote_only_adds_labels_and_every_instance_is_big_enough(seed, g, k, min_points):
     rng = np.random.default_rng(seed)
@@ -159,7 +159,7 @@ def test_same_view_pairs_do_not_dilute_the_mean_linkage():
     assert m.spatial == np.float32(0.6) or abs(m.spatial - 0.6) < 1e-6
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=40, deadline=None)
 @given(st.integers(0, 10_000), st.integers(2, 9))
 def test_with_one_mask_per_view_the_mean_over_edges_is_the_mean_over_all_pairs(seed, n_groups):
     # so ours (one mask per view on) gives the same groups as before the fix
