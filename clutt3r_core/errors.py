@@ -23,10 +23,17 @@ class SceneFileError(SceneError):
         self.problem = problem
         super().__init__(f"{self.path}: {problem}")
 
+    def __reduce__(self):  # pickle (a worker process's error reaching the caller) by the arguments
+        return (type(self), (self.path, self.problem))
+
 
 class MissingDependencyError(Clutt3rError, ImportError):
     """An optional package needed by a backend is not installed."""
 
     def __init__(self, what: str, package: str, extra: str | None = None) -> None:
+        self.what, self.package, self.extra = what, package, extra
         hint = f"pip install 'clutt3r[{extra}]'" if extra else f"pip install {package}"
         super().__init__(f"{what} needs the package '{package}', which is not installed: {hint}")
+
+    def __reduce__(self):
+        return (type(self), (self.what, self.package, self.extra))

@@ -117,6 +117,17 @@ def _call_checked(fn: Callable[[T], R], item: T, version: str | None) -> R:
     return fn(item)
 
 
+def _label(item: Any, i: int) -> str:
+    """A short name of a runner item for a task key: a Job's scene, method and setting, the scene
+    of a ``prepare_scene`` argument, else its position."""
+    scene = getattr(item, "scene", None)
+    if scene is not None and hasattr(item, "method"):
+        return f"{scene.name}/{item.method}/{item.setting.label}"
+    if isinstance(item, tuple) and item and hasattr(item[0], "identity"):
+        return str(item[0].name)
+    return str(i)
+
+
 class DaskExecutor(_Closing):
     """Jobs on a Dask distributed cluster (``pip install 'clutt3r[distributed]'``).
 
@@ -199,14 +210,20 @@ class DaskExecutor(_Closing):
 
         if not items:
             return
-        futures = [self._client.submit(_call_checked, fn, it, self._version, pure=False) for it in items]
+        import uuid
+
+        run = uuid.uuid4().hex[:8]
+        name = getattr(fn, "__name__", "task")
+        # the key names the work (dashboard, and the error when its workers die)
+        futures = [self._client.submit(_call_checked, fn, it, self._version, key=f"{name}-{_label(it, i)}-{run}")
+                   for i, it in enumerate(items)]
         try:
             for f in dask_completed(futures):
                 yield f.result()
         except KilledWorker as e:
             # Dask retried the task on other workers (distributed.scheduler.allowed-failures)
             raise ExecutorError(
-                f"Dask workers died running {getattr(fn, '__name__', 'a task')} ({e}); the worker logs say why "
+                f"Dask workers died running {e.task} (on {e.allowed_failures + 1} worker(s)); the worker logs say why "
                 "(memory limit, a crash in native code); finished jobs are cached, rerun to resume"
             ) from None
         except (CommClosedError, OSError) as e:

@@ -12,10 +12,10 @@ from pathlib import Path
 import pytest
 
 from clutt3r_core import registry as reg
-from clutt3r_core.errors import Clutt3rError, MissingDependencyError, SceneError
+from clutt3r_core.errors import Clutt3rError, MissingDependencyError, SceneError, SceneFileError
 from clutt3r_core.evaluation import runner
 from clutt3r_core.evaluation.executors import Executor, ExecutorError, SerialExecutor, create_executor
-from clutt3r_core.evaluation.runner import Setting, plan_jobs, run_benchmark, synth_suite
+from clutt3r_core.evaluation.runner import SceneSpec, Setting, plan_jobs, run_benchmark, synth_suite
 
 distributed = pytest.importorskip("distributed", reason="needs clutt3r[distributed] (pip install 'clutt3r[distributed]')")
 
@@ -111,7 +111,11 @@ def test_dask_results_equal_serial_and_the_cache_holds(cluster, tmp_path):
     assert [_results_only(r) for r in again] == [_results_only(r) for r in first]
 
 
-def test_a_job_error_reaches_the_caller_unchanged(cluster):
+def test_a_job_error_reaches_the_caller_unchanged(cluster, tmp_path):
+    broken = SceneSpec("broken", "folder", path=str(tmp_path / "no-such-scene"), identity="0" * 16)
+    with pytest.raises(SceneFileError) as e:
+        list(cluster.map(runner.prepare_scene, [(broken, str(tmp_path))]))
+    assert e.value.path == tmp_path / "no-such-scene"  # the error itself, with its fields
     make = functools.partial(Setting, 8, "clean")  # Setting(8, "clean", masks=item) checks masks
     with pytest.raises(SceneError, match="unknown mask source 'nope'"):
         list(cluster.map(make, ["scene", "nope"]))
@@ -159,5 +163,5 @@ def test_missing_package_names_the_extra(monkeypatch):
 
 def test_a_dead_worker_is_one_clear_error(cluster):
     """Last in the module: it kills a worker (its nanny restarts it)."""
-    with pytest.raises(ExecutorError, match="Dask workers died running _exit"):
+    with pytest.raises(ExecutorError, match=r"Dask workers died running _exit-0-\w+ \(on 1 worker\(s\)\)"):
         list(cluster.map(os._exit, [3]))
