@@ -20,6 +20,7 @@ from clutt3r_core.errors import SceneError, SceneFileError
 from clutt3r_core.occupancy import OccupancyConfig
 from clutt3r_core.pointcloud import PointCloudConfig
 from clutt3r_core.segmentation.grouping import GroupingConfig
+from clutt3r_core.segmentation.refine import RefineConfig
 from clutt3r_core.segmentation.trees import TreeConfig
 from clutt3r_core.segmentation.vote import VoteConfig
 from clutt3r_core.supervoxels import SuperVoxelConfig
@@ -49,6 +50,8 @@ class SegmentConfig:
     trees: TreeConfig = field(default_factory=TreeConfig)
     grouping: GroupingConfig = field(default_factory=GroupingConfig)
     vote: VoteConfig = field(default_factory=VoteConfig)
+    refine: RefineConfig = field(default_factory=RefineConfig)
+    """Post-vote fragment absorption (ours, issue 13; ``segmentation.refine``)."""
     embedder: str = "appearance-hsv"
     """Backend of S_semantic (Sec. III-B.2 uses Duoduo CLIP; see clutt3r_core/embeddings.py)."""
     background_fraction: float = 0.5
@@ -109,6 +112,9 @@ ADDITIONS: tuple[Addition, ...] = (
              (("trees.min_area_px", 0, 1),)),
     Addition("min-instance-points", "instances under 30 raw points are dropped",
              (("vote.min_instance_points", 30, 0),)),
+    Addition("absorb-fragments", "an instance that won < 20 % of its masks' footprint and holds < 10 % of the points of "
+             "the instance that won most of it is merged into that instance",
+             (("refine.min_won_fraction", 0.2, 0.0),)),
     Addition("pixel-stride", "1080p views are sampled every 3rd pixel before voxelisation (none at 640x480)",
              (("pointcloud.pixel_stride", 0, 1),)),
 )
@@ -187,10 +193,16 @@ ADDED_AFTER_V1: dict[str, Any] = {
     "grouping.spatial_excludes_support": True,
     "grouping.substitute_stranded_parents": False,
     "vote.revote_dropped": False,
+    "refine.min_won_fraction": 0.0,
 }
 """Fields added after trace version 1, each with the value that reproduces the code that wrote
 such a trace (issue 13: the first two only made existing rules switchable; the last two are
 fixes that the old code did not have). Only these may be missing from a stored config."""
+
+
+_STAGES_ADDED_AFTER_V1 = ("refine",)
+"""Whole stage configs added after trace version 1 (issue 13: ``refine``); a config without one
+gets its defaults with the ``ADDED_AFTER_V1`` fields (any other missing stage is an error)."""
 
 
 def config_from_json(data: Any, file: str | Path) -> SegmentConfig:
@@ -208,6 +220,8 @@ def _fill_added(data: dict) -> dict:
         head, _, rest = path.partition(".")
         if not rest:
             out.setdefault(head, value)
+        elif head not in out and head in _STAGES_ADDED_AFTER_V1:  # its defaults, this field as the old code behaved
+            out[head] = {**dataclasses.asdict(getattr(SegmentConfig(), head)), rest: value}
         elif isinstance(out.get(head), dict) and rest not in out[head]:
             out[head] = {**out[head], rest: value}
     return out

@@ -32,6 +32,7 @@ from clutt3r_core.segmentation.grouping import (
     semantic_similarity,
     spatial_similarity,
 )
+from clutt3r_core.segmentation.refine import absorb_fragments
 from clutt3r_core.segmentation.trace import StageClock, StageTiming, Trace
 from clutt3r_core.segmentation.trees import InstanceTree, build_instance_tree
 from clutt3r_core.segmentation.vote import supervoxel_vote
@@ -193,9 +194,12 @@ def segment(
     with timer("grouping"):
         grouping = run_grouping(nodes, sim, len(views), config.grouping)
     with timer("vote"):
-        vote = supervoxel_vote(
-            grouping.groups, occupancy, sv.counts, sv.support, s_spat, len(views), config.vote
-        )
+        def revote(groups):
+            return supervoxel_vote(groups, occupancy, sv.counts, sv.support, s_spat, len(views), config.vote)
+
+        vote = revote(grouping.groups)
+        # ours (issue 13): fragment groups join the instance that won their masks' footprint
+        grouping, vote = absorb_fragments(grouping, vote, occupancy, sv.counts, s_spat, s_sem, revote, config.refine)
         instance = vote.sv_label[sv.labels]
     tick("done")
     if bar is not None:

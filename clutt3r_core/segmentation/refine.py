@@ -1,0 +1,164 @@
+"""Fragment absorption after the vote (ours, issue 13).
+
+The grouping can leave one object as two groups: a group of whole-object masks and a
+group of part masks (a handle, a lid, the visible half of an occluded box) that never met
+the spatial threshold with the first. Both vote; the whole-object group wins most of the
+part group's super-voxels too (its summed occupancy is larger there), and the part group
+keeps a sliver: an extra instance of a few dozen points (the viewer listed instances of
+7 points; generated scenes had 1-4 such fragments each).
+
+The vote itself says which groups these are. The **footprint** of a group is where its masks
+put occupancy: f_g(k) = sum_{i in g} o_i(k) * n_k over the labelled super-voxels k (n_k its raw
+points; support and unlabelled super-voxels carry no evidence). A group that won less than
+``min_won_fraction`` of its own footprint is explained by others: its masks lie mostly on
+super-voxels another instance won. It is merged into the instance that won the largest share
+of its footprint (a ``MergeStep`` of stage ``"absorb"``, so the trace replays it like any other
+merge) and the vote is run again; one merge at a time, the least-won group first, until no
+group is below the fraction. A separate object touching another wins its own footprint (its
+masks cover its own super-voxels more than the neighbour's masks do), so it is not absorbed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from clutt3r_core.errors import SceneError
+from clutt3r_core.segmentation.grouping import GroupingResult, MergeStep
+from clutt3r_core.segmentation.vote import VoteResult
+
+__all__ = ["RefineConfig", "won_fractions", "absorb_fragments", "ABSORB_STAGE"]
+
+ABSORB_STAGE = "absorb"
+"""``MergeStep.stage`` of a fragment absorption."""
+
+
+@dataclass(frozen=True)
+class RefineConfig:
+    """Post-vote refinement (ours; every field off in the paper preset)."""
+
+    min_won_fraction: float = 0.2
+    """Ours (issue 13): an instance whose group won less than this fraction of its own footprint
+    (module docstring) is merged into the instance that won most of it; 0 = off (the paper's
+    text). Measured on generated scenes with RealSense-like depth: fragments win 0.00-0.08 of
+    their footprint, separate objects 0.33 and more; 0.2 sits in the gap (0.5 merged two objects
+    on a hard scene, -5.2 AP)."""
+    max_size_ratio: float = 0.1
+    """Ours (issue 13): ... and only if it holds fewer raw points than this fraction of that
+    instance (a fragment is a piece). On real sample_seq4 two real objects win only 0.10-0.11 of
+    their footprints (real depth noise lets touching objects' masks overlap in 3D) and hold
+    19-22 % of the neighbour's points; 0.25 absorbed them (leaf-pair F1 0.881 -> 0.872), 0.1
+    does not (0.895)."""
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.min_won_fraction <= 1.0:
+            raise SceneError(f"RefineConfig.min_won_fraction must be in [0, 1], got {self.min_won_fraction}")
+        if not self.max_size_ratio > 0.0:
+            raise SceneError(f"RefineConfig.max_size_ratio must be > 0, got {self.max_size_ratio}")
+
+
+def won_fractions(
+    groups: tuple[tuple[int, ...], ...], occupancy: np.ndarray, sv_counts: np.ndarray, vote: VoteResult
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Footprint shares of every instance's group.
+
+    groups: node-index tuples (the vote's); occupancy: (U, K) o_i(k); sv_counts: (K,) raw points
+    per super-voxel. Returns (won (I,) float64: the share of instance i's footprint it won
+    itself, NaN without a footprint; best (I,) int64: the other instance that won the largest
+    share, -1 = none; share (I,) float64: that share).
+    """
+    n_inst = len(vote.instance_group)
+    won = np.full(n_inst, np.nan)
+    best = np.full(n_inst, -1, np.int64)
+    share = np.zeros(n_inst)
+    labelled = vote.sv_label >= 0
+    if not n_inst or not labelled.any():
+        return won, best, share
+    lab = vote.sv_label[labelled]
+    w = np.asarray(sv_counts, np.float64)[labelled]
+    for i, g in enumerate(vote.instance_group):
+        f = occupancy[list(groups[int(g)])][:, labelled].sum(axis=0) * w
+        total = f.sum()
+        if total <= 0:
+            continue
+        by_inst = np.bincount(lab, weights=f, minlength=n_inst) / total
+        won[i] = by_inst[i]
+        by_inst[i] = -1.0
+        best[i] = int(np.argmax(by_inst))
+        share[i] = by_inst[best[i]]
+    return won, best, share
+
+
+def absorb_fragments(
+    grouping: GroupingResult,
+    vote: VoteResult,
+    occupancy: np.ndarray,
+    sv_counts: np.ndarray,
+    s_spatial: np.ndarray,
+    s_semantic: np.ndarray,
+    revote: Callable[[tuple[tuple[int, ...], ...]], VoteResult],
+    cfg: RefineConfig,
+) -> tuple[GroupingResult, VoteResult]:
+    """Merge fragment groups into the instance that won their footprint (module docstring).
+
+    ``revote(groups)`` runs the vote on new groups (the pipeline's ``supervoxel_vote`` with its
+    arguments). Returns the grouping with one ``"absorb"`` merge per absorbed group appended to
+    its merges and events, and the vote on the final groups; both unchanged when nothing is
+    absorbed or the rule is off.
+    """
+    if cfg.min_won_fraction <= 0:
+        return grouping, vote
+    groups = [tuple(g) for g in grouping.groups]
+    merges, events = list(grouping.merges), list(grouping.events)
+    kept_score: dict[tuple[int, ...], float] = {}  # merged group -> the absorbing instance's confidence
+    for _ in range(len(groups)):
+        won, best, share = won_fractions(tuple(groups), occupancy, sv_counts, vote)
+        lab = vote.sv_label
+        pts = np.bincount(lab[lab >= 0], weights=np.asarray(sv_counts, np.float64)[lab >= 0], minlength=len(won))
+        small = pts < cfg.max_size_ratio * pts[np.maximum(best, 0)]
+        cand = np.flatnonzero((won < cfg.min_won_fraction) & (best >= 0) & (share > won) & small)
+        if not len(cand):
+            break
+        i = int(cand[np.argmin(won[cand])])
+        gi, gj = int(vote.instance_group[i]), int(vote.instance_group[best[i]])
+        a, b = groups[gi], groups[gj]
+        cross = np.ix_(list(a), list(b))
+        # recorded only (0 where no pair has an edge: the trace is JSON, which has no NaN)
+        sp = np.nanmean(s_spatial[cross]) if np.isfinite(s_spatial[cross]).any() else 0.0
+        se = np.nanmean(s_semantic[cross]) if np.isfinite(s_semantic[cross]).any() else 0.0
+        rnd = max((m.round for m in merges), default=0) + 1
+        merges.append(MergeStep(stage=ABSORB_STAGE, round=rnd, a=a, b=b, score=float(share[i]),
+                                spatial=float(sp), semantic=float(se)))
+        events.append(("merge", len(merges) - 1))
+        merged = tuple(sorted(a + b))
+        kept_score[merged] = kept_score.pop(b, float(vote.scores[best[i]]))
+        kept_score.pop(a, None)
+        groups = [g for k, g in enumerate(groups) if k not in (gi, gj)] + [merged]
+        vote = revote(tuple(groups))
+    if len(merges) == len(grouping.merges):
+        return grouping, vote
+    from dataclasses import replace
+
+    return (replace(grouping, groups=tuple(groups), merges=tuple(merges), events=tuple(events)),
+            _keep_scores(vote, tuple(groups), kept_score))
+
+
+def _keep_scores(vote: VoteResult, groups: tuple[tuple[int, ...], ...], kept: dict[tuple[int, ...], float]) -> VoteResult:
+    """The vote with every absorbing instance at the confidence it had before it absorbed.
+
+    The confidence is the group's size (Sec. III-B.4: masks per view); a fragment's masks are
+    more views of the same object, not more evidence that it is one, and counting them moved the
+    absorbing instance ahead of better ones (measured: -1.7 to -2.6 AP on easy held-out scenes).
+    Instances are renumbered by descending confidence as the vote numbers them (ties: lower id).
+    """
+    scores = np.array([kept.get(groups[int(g)], float(s)) for g, s in zip(vote.instance_group, vote.scores)], np.float32)
+    order = np.lexsort((np.arange(len(scores)), -scores))
+    new_id = np.empty(len(order), np.int32)
+    new_id[order] = np.arange(len(order), dtype=np.int32)
+    lab = vote.sv_label
+    sv_label = np.where(lab >= 0, new_id[np.maximum(lab, 0)] if len(order) else -1, -1).astype(np.int32)
+    from dataclasses import replace
+
+    return replace(vote, sv_label=sv_label, instance_group=vote.instance_group[order], scores=scores[order])
