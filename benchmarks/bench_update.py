@@ -278,12 +278,15 @@ def main() -> None:
                     help="ChangeConfig.use_depth=False: the IoU test and the silhouette fit even with depth")
     ap.add_argument("--refine-registration", action="store_true",
                     help="PoseConfig.refine_registration: the paper's chamfer/photo stages after the depth registration")
+    ap.add_argument("--photo-weight", type=float, default=PoseConfig().registration_photo_weight,
+                    help="PoseConfig.registration_photo_weight (colour tie-break of the depth registration)")
     ap.add_argument("--tag", default="", help="suffix of results_<tag>.json")
     a = ap.parse_args()
     cfg = UpdateConfig(change=ChangeConfig(verify=not a.no_verify, min_fit_iou=a.min_fit_iou,
                                            use_depth=not a.no_depth_cues),
                        pose=replace(PoseConfig(), dof=a.dof, early_exit=not a.no_early_exit,
-                                    refine_registration=a.refine_registration))
+                                    refine_registration=a.refine_registration,
+                                    registration_photo_weight=a.photo_weight))
     a.out.mkdir(parents=True, exist_ok=True)
     rows = []
     for i in range(a.pairs):

@@ -236,7 +236,11 @@ def _point_to_plane_batch(A: np.ndarray, B: np.ndarray, N: np.ndarray, w: np.nda
     return dR, x[:, 3:]
 
 
-def _consistency(model: np.ndarray, T: np.ndarray, camera: Camera, depth: np.ndarray, tol: float) -> float:
+def _consistency(model: np.ndarray, T: np.ndarray, camera: Camera, depth: np.ndarray, tol: float,
+                 colors: np.ndarray | None = None, rgb: np.ndarray | None = None) -> tuple[float, float]:
+    """(consistency, photo): the free-space test of the module docstring, and the mean absolute
+    colour difference (0-1) between the stored colours of the model points on the observed
+    surface and the image there (NaN without colours)."""
     p = model @ T[:3, :3].T + T[:3, 3]
     uv, z = camera.project(p)
     d = _depth_at(depth, uv)
@@ -244,19 +248,28 @@ def _consistency(model: np.ndarray, T: np.ndarray, camera: Camera, depth: np.nda
     on = ok & (np.abs(d - z) <= tol)
     front = ok & (z < d - tol)
     n = int(on.sum() + front.sum())
-    return float(on.sum() / n) if n else 0.0
+    photo = float("nan")
+    if colors is not None and rgb is not None and on.any():
+        u = np.round(uv[on, 0]).astype(np.int64)
+        v = np.round(uv[on, 1]).astype(np.int64)
+        photo = float(np.abs(rgb[v, u].astype(np.float64) - colors[on].astype(np.float64)).mean() / 255.0)
+    return (float(on.sum() / n) if n else 0.0), photo
 
 
 def register(model: np.ndarray, scene: np.ndarray, camera: Camera, depth: np.ndarray, *,
              starts: np.ndarray, iterations: int = 12, keep: int = 8, prune_at: int = 4, tol: float = 0.01,
-             max_model_points: int = 1500, tie_margin: float = 0.03, seed: int = 0) -> Registration | None:
+             max_model_points: int = 1500, tie_margin: float = 0.03, seed: int = 0,
+             colors: np.ndarray | None = None, rgb: np.ndarray | None = None,
+             photo_weight: float = 0.0) -> Registration | None:
     """Align ``model`` (stored points, old world pose) to ``scene`` (new depth points of a mask)
     from every start rotation (module docstring, 3). None when there are too few scene points."""
     if len(scene) < 20 or len(model) < 20:
         return None
     rng = np.random.default_rng(seed)
     if len(model) > max_model_points:
-        model = model[np.sort(rng.choice(len(model), max_model_points, replace=False))]
+        keep_idx = np.sort(rng.choice(len(model), max_model_points, replace=False))
+        model = model[keep_idx]
+        colors = None if colors is None else np.asarray(colors)[keep_idx]
     cm, cs = model.mean(axis=0), scene.mean(axis=0)
     tree = cKDTree(model)
     normals = _normals(model, tree)
@@ -298,11 +311,12 @@ def register(model: np.ndarray, scene: np.ndarray, camera: Camera, depth: np.nda
         G[:3, :3] = R[s]
         G[:3, 3] = cm + t[s] - R[s] @ cs
         T = np.linalg.inv(G)
-        cons = _consistency(model, T, camera, depth, tol)
+        cons, photo = _consistency(model, T, camera, depth, tol, colors, rgb)
         ang = float(np.degrees(np.arccos(np.clip((np.trace(T[:3, :3]) - 1) / 2, -1, 1))))
-        cands.append((float(fitness[s]) * cons, ang, s, T, cons))
+        rank = float(fitness[s]) * cons - (photo_weight * photo if np.isfinite(photo) else 0.0)
+        cands.append((rank, ang, s, T, cons, float(fitness[s]) * cons))
     top = max(c[0] for c in cands)
-    score, _, s, T, cons = min((c for c in cands if c[0] >= top - tie_margin), key=lambda c: c[1])
+    _, _, s, T, cons, score = min((c for c in cands if c[0] >= top - tie_margin), key=lambda c: c[1])
 
     def motion(Rs: np.ndarray, ts: np.ndarray) -> np.ndarray:
         G = np.eye(4)

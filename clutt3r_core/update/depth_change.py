@@ -125,7 +125,9 @@ def depth_changes(state, view: View, config: UpdateConfig, assoc: Association, s
         for mi, pts, ext, rest in cands:
             if ext > cc.max_extent_ratio * diam + 0.01:
                 continue
-            reg = register(model, pts, cam, depth, starts=starts, tol=cc.in_place_tol)
+            reg = register(model, pts, cam, depth, starts=starts, tol=cc.in_place_tol,
+                           colors=state.colors[state.instance == k], rgb=view.rgb,
+                           photo_weight=config.pose.registration_photo_weight)
             n_reg += 1
             if reg is None or reg.fitness < cc.accept_fitness or reg.consistency < cc.accept_consistency:
                 continue

@@ -107,6 +107,10 @@ class PoseConfig:
     """Ours: with depth, a displaced instance's pose comes from the depth registration
     (``ChangeConfig.use_depth``); True continues with the paper's chamfer/photo stages from it
     (``PoseProblem.T_init``). Default False: measured no better (docs/update.md)."""
+    registration_photo_weight: float = 0.0
+    """Ours: the depth registration ranks its converged starts by fitness x consistency minus
+    this x the mean colour difference (0-1) of the model points on the observed surface (the
+    paper's L_photo as a tie-break between poses the geometry cannot tell apart)."""
     registration_yaw_step_deg: float = 30.0
     """Ours: start yaws of the depth registration (with the six up-axis placements)."""
 
