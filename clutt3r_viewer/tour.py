@@ -154,12 +154,12 @@ def step_camera(data: ViewerData, step: TourStep, view: int, focus: np.ndarray |
         return _look(look + d, look, base.fov)
     if step.camera in ("target", "displaced") and focus is not None and len(focus):
         pts = np.asarray(focus, float)
-        c = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
-        r = float(np.percentile(np.linalg.norm(pts - c, axis=1), 98))
+        c = 0.5 * (np.percentile(pts, 5, axis=0) + np.percentile(pts, 95, axis=0))  # stray points do not pull it
+        r = float(np.percentile(np.linalg.norm(pts - c, axis=1), 90))
         d = base.position - look
         d = d / np.linalg.norm(d)
-        # the object fills about a third of the view height: its neighbours stay in sight
-        dist = max(0.35, 3.0 * r / np.tan(base.fov / 2))
+        # the object fills about half the view height: its neighbours stay in sight
+        dist = max(0.3, 2.0 * r / np.tan(base.fov / 2))
         return _look(c + dist * d, c, base.fov)
     return base
 

@@ -4,7 +4,7 @@
     .venv/bin/python scripts/tour_screenshots.py runs/demo docs/img/tour
 
 Serves the run in-process, opens it in headless chromium (Debian's /usr/bin/chromium, through
-playwright) at 1280x800, clicks Next through the tour and saves one page screenshot per step.
+playwright) at 1280x960, clicks Next through the tour and saves one page screenshot per step.
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ def main(run: str, out: str, settle: float = 4.0) -> None:
     try:
         with sync_playwright() as pw:
             b = pw.chromium.launch(executable_path="/usr/bin/chromium", args=ARGS)
-            page = b.new_page(viewport={"width": 1280, "height": 800})
+            page = b.new_page(viewport={"width": 1280, "height": 960})
             page.goto(app.url)
             page.wait_for_selector("canvas", timeout=60_000)
             sess = app.wait_for_sessions(1, timeout=60)[0]
@@ -49,6 +49,14 @@ def main(run: str, out: str, settle: float = 4.0) -> None:
             t0 = time.time()
             while tour.applied < 1 and time.time() - t0 < 60:
                 time.sleep(0.1)
+            time.sleep(2.0)
+            # the "software WebGL" notice of headless chromium is not the subject
+            close = page.locator("[role=alert]").filter(has_text="WebGL").locator("button")
+            for i in range(close.count()):
+                try:
+                    close.nth(i).click(timeout=2_000)
+                except Exception:  # noqa: BLE001
+                    pass
             for k, step in enumerate(STEPS):
                 if k:
                     n = tour.applied

@@ -149,7 +149,7 @@ class TourPanel(Panel):
         # A browser that just connected may still apply its initial camera after ours (seen in headless
         # chromium under load): for a few seconds, put the step's camera back when the reported one differs.
         t1 = time.time()
-        while not s.closed and time.time() - t1 < 4.0 and self.step == 0 and not self.exploring:
+        while not s.closed and time.time() - t1 < 10.0 and self.step == 0 and not self.exploring:
             time.sleep(0.3)
             want = self.camera
             cam = s.client.camera

@@ -75,8 +75,10 @@ def test_the_tour_walks_the_whole_story(browser, tour_app, artifacts):  # noqa: 
         focus = {"query": focus_points(d, st.query_best), "grasps": focus_points(d, story.grasp_target),
                  "pose": TourPanel.pose_focus(d, src, story.true_displaced)}.get(step.key)
         want = step_camera(d, step, view, focus)
-        _wait(lambda: np.linalg.norm(_camera(sess)[1] - want.look_at) < 2e-3
-              and np.linalg.norm(_camera(sess)[0] - want.position) < 2e-3, what=f"camera of step {step.key}")
+        ok = lambda: (np.linalg.norm(_camera(sess)[1] - want.look_at) < 2e-3  # noqa: E731
+                      and np.linalg.norm(_camera(sess)[0] - want.position) < 2e-3)
+        _wait(ok, timeout=20, what=f"camera of step {step.key}: browser {_camera(sess)}, step "
+              f"{want.position}, {want.look_at}")
         cams.append(_camera(sess))
         if step.needs in ("query", "grasps") and not has_query:
             assert "query" in tour.text.content.lower() or "nothing" in tour.text.content.lower()
