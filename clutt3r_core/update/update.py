@@ -10,6 +10,13 @@ A second pass (ours) re-checks each flagged instance without the other flagged i
 the z-buffer and ignoring the pixels where those were (old projection) or are (new mask):
 a static object that a displaced neighbour used to hide, or now hides, must not be flagged
 for its neighbour's motion. Static instances are left untouched.
+
+With new depth (ours, ``ChangeConfig.use_depth``, depth_change.py): instances whose stored
+points agree with the new depth are static whatever their IoU; those whose old place is seen
+empty (and hidden IoU-flagged ones) are registered against the mask candidates: displaced with
+the registration's pose when a fit passes, else removed (hidden ones: occluded). The paper's
+silhouette/photometric fit then runs only for views without depth (or, optionally, after the
+registration: ``PoseConfig.refine_registration``).
 """
 
 from __future__ import annotations
