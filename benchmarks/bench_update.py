@@ -280,13 +280,16 @@ def main() -> None:
                     help="PoseConfig.refine_registration: the paper's chamfer/photo stages after the depth registration")
     ap.add_argument("--photo-weight", type=float, default=PoseConfig().registration_photo_weight,
                     help="PoseConfig.registration_photo_weight (colour tie-break of the depth registration)")
+    ap.add_argument("--tie-margin", type=float, default=PoseConfig().registration_tie_margin,
+                    help="PoseConfig.registration_tie_margin")
     ap.add_argument("--tag", default="", help="suffix of results_<tag>.json")
     a = ap.parse_args()
     cfg = UpdateConfig(change=ChangeConfig(verify=not a.no_verify, min_fit_iou=a.min_fit_iou,
                                            use_depth=not a.no_depth_cues),
                        pose=replace(PoseConfig(), dof=a.dof, early_exit=not a.no_early_exit,
                                     refine_registration=a.refine_registration,
-                                    registration_photo_weight=a.photo_weight))
+                                    registration_photo_weight=a.photo_weight,
+                                    registration_tie_margin=a.tie_margin))
     a.out.mkdir(parents=True, exist_ok=True)
     rows = []
     for i in range(a.pairs):

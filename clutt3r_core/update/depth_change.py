@@ -129,7 +129,8 @@ def depth_changes(state, view: View, config: UpdateConfig, assoc: Association, s
                 continue
             reg = register(model, pts, cam, depth, starts=starts, tol=cc.in_place_tol,
                            colors=state.colors[state.instance == k], rgb=view.rgb,
-                           photo_weight=config.pose.registration_photo_weight)
+                           photo_weight=config.pose.registration_photo_weight,
+                           tie_margin=config.pose.registration_tie_margin)
             n_reg += 1
             if reg is None or reg.fitness < cc.accept_fitness or reg.consistency < cc.accept_consistency:
                 continue

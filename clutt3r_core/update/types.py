@@ -111,6 +111,9 @@ class PoseConfig:
     """Ours: the depth registration ranks its converged starts by fitness x consistency minus
     this x the mean colour difference (0-1) of the model points on the observed surface (the
     paper's L_photo as a tie-break between poses the geometry cannot tell apart)."""
+    registration_tie_margin: float = 0.03
+    """Ours: converged registration starts within this of the best score are ties, decided by
+    the smallest rotation (symmetric objects fit many poses equally; the least motion is kept)."""
     registration_yaw_step_deg: float = 30.0
     """Ours: start yaws of the depth registration (with the six up-axis placements)."""
 
