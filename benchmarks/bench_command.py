@@ -30,6 +30,14 @@ CPU time is the fairer number on a loaded machine (the segment command is mostly
 thread): on the project's shared 2-core machine wall times vary 2-3x with other jobs.
 Prints a markdown table with current / base ratios; ``--out`` writes the raw numbers.
 
+Measured 2026-11-30 (shared 2-core machine, load average 10-13, so wall times are 3-5x an
+idle machine's; ``--current`` = dfdac67 plus the speed commits only), current / base:
+hard 640x480 whole command CPU 7.02 / 7.53 s, peak RSS 332 / 435 MiB, warm core CPU 3.61 /
+3.02 s; sample_seq4 whole command CPU 14.32 / 15.25 s, peak RSS 649 / 826 MiB, warm core CPU
+4.93 / 4.13 s; instances identical. Table and reading: docs/benchmark.md, "Whole command".
+Base and ``--current`` checkouts are ``git worktree``s under ``--work``, kept for the next run
+(``git worktree remove`` them when done).
+
 The old checkout's CLI is started through a small harness that skips entry-point commands
 (``clutt3r.commands``, from the installed package metadata) whose function the old tree
 does not have yet; their modules are still imported, as the old ``clutt3r`` would.
@@ -122,9 +130,10 @@ def _env(tree: Path) -> dict:
     return env
 
 
-def _base_tree(ref: str, work: Path) -> Path:
+def _ref_tree(ref: str, work: Path) -> Path:
+    """A checkout of ``ref`` under ``work`` (``git worktree add``, kept for the next run)."""
     sha = subprocess.run(["git", "rev-parse", ref], cwd=ROOT, capture_output=True, text=True, check=True).stdout.strip()
-    tree = work / f"base-{sha[:12]}"
+    tree = work / f"tree-{sha[:12]}"
     if not (tree / "clutt3r_core").is_dir():
         subprocess.run(["git", "worktree", "add", "--detach", str(tree), sha], cwd=ROOT, check=True,
                        capture_output=True)
@@ -164,6 +173,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--base", default=BASE_REF, help="git ref of the baseline tree")
     ap.add_argument("--no-base", action="store_true", help="measure this checkout only")
+    ap.add_argument("--current", default=None,
+                    help="git ref to measure as 'current' instead of this working tree (e.g. to leave out "
+                         "uncommitted work of others)")
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--work", type=Path, default=Path("/tmp/clutt3r-bench-command"))
     ap.add_argument("--scenes", nargs="*", default=["hard:0"], help="generated scenes, PRESET:SEED")
@@ -172,9 +184,10 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=None, help="JSON file of the raw numbers")
     args = ap.parse_args()
     args.work.mkdir(parents=True, exist_ok=True)
-    trees = {"current": ROOT}
+    current = _ref_tree(args.current, args.work) if args.current else ROOT
+    trees = {"current": current}
     if not args.no_base:
-        trees = {"base": _base_tree(args.base, args.work), "current": ROOT}
+        trees = {"base": _ref_tree(args.base, args.work), "current": current}
     py = sys.executable
     results = []
     for label, kind, folder in _scenes(args, args.work):
@@ -203,6 +216,7 @@ def main() -> None:
     _print_table(results, list(trees))
     if args.out:
         args.out.write_text(json.dumps({"trees": {t: str(p) for t, p in trees.items()}, "base_ref": args.base,
+                                        "current_ref": args.current,
                                         "runs": args.runs, "results": results}, indent=1))
 
 
