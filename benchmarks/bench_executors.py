@@ -42,9 +42,11 @@ def _bench(executor: str, work: Path, args: argparse.Namespace, cache: Path, sna
     return time.perf_counter() - t0, out.strip().splitlines()[-1].split(" in ")[0]
 
 
-def _results(work: Path) -> list[dict]:
+def _results(work: Path) -> tuple[list[dict], float]:
+    """The results less their run measurements, and the jobs' summed wall seconds (compute)."""
     rows = json.loads((work / "out" / "results.json").read_text())["results"]
-    return sorted(({k: v for k, v in r.items() if k not in _RUN} for r in rows), key=lambda r: r["key"])
+    out = sorted(({k: v for k, v in r.items() if k not in _RUN} for r in rows), key=lambda r: r["key"])
+    return out, sum(r["wall_seconds"] for r in rows)
 
 
 def main() -> None:
@@ -64,28 +66,30 @@ def main() -> None:
         snap = Path(tmp) / "snapshot"
         shutil.copytree(ROOT / "clutt3r_core", snap / "clutt3r_core", ignore=shutil.ignore_patterns("__pycache__"))
         for ex in args.executors:
-            times, warm, said = [], None, ""
+            times, warm, said, busy = [], None, "", []
             for i in range(args.repeats):
                 work = Path(tmp) / f"{ex}-{i}"
                 t, said = _bench(ex, work, args, work / "cache", snap)
                 times.append(t)
-                results[ex] = _results(work)
+                results[ex], b = _results(work)
+                busy.append(b)
                 if ex == "dask" and warm is None:
                     warm = _bench(ex, work, args, work / "cache", snap)  # same cache: nothing to compute
                 shutil.rmtree(work)
-            rows.append((ex, times, said))
+            rows.append((ex, times, said, busy))
             if warm is not None:
-                rows.append(("dask, second run", [warm[0]], warm[1]))
+                rows.append(("dask, second run", [warm[0]], warm[1], []))
     ref = next(iter(results.values()))
     same = {ex: r == ref for ex, r in results.items()}
     n = len(ref)
     print(f"{n} jobs ({args.per_difficulty} scene(s) per difficulty at {args.size}, methods {' '.join(args.methods)}), "
           f"{args.workers} workers, {os.cpu_count()} CPUs, 1-min load average at the start: {load:.1f}\n")
-    print("| executor | wall time (s), whole command | the command said | results equal to the first |")
-    print("|---|---|---|---|")
-    for name, ts, said in rows:
+    print("| executor | wall time (s), whole command | jobs' own wall time, summed (s) | the command said | results equal to the first |")
+    print("|---|---|---|---|---|")
+    for name, ts, said, busy in rows:
         ex = name.split(",")[0]
-        print(f"| {name} | {' / '.join(f'{t:.1f}' for t in ts)} | {said} | {same.get(ex, '')} |")
+        fmt = lambda xs: " / ".join(f"{t:.1f}" for t in xs)  # noqa: E731
+        print(f"| {name} | {fmt(ts)} | {fmt(busy) or '-'} | {said} | {same.get(ex, '') if busy else ''} |")
     if not all(same.values()):
         sys.exit("executors disagree")
 
