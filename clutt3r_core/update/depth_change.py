@@ -24,6 +24,7 @@ Runs after the association (associate.py) when the post-interaction view has dep
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -33,8 +34,6 @@ from clutt3r_core.update.associate import Association, project_instances
 from clutt3r_core.update.depth import (PlaceCheck, Registration, explained_pixels, mask_points, place_check,
                                        register, start_rotations)
 from clutt3r_core.update.project import mask_iou, silhouette
-import time
-
 from clutt3r_core.update.types import LOSS_NAMES, PoseResult, PoseTrace, UpdateConfig
 
 __all__ = ["Fit", "DepthChanges", "depth_changes", "fit_iou", "registration_result"]

@@ -29,8 +29,8 @@ import numpy as np
 from clutt3r_core.errors import SceneError
 from clutt3r_core.scene import MaskCandidates, View
 from clutt3r_core.segmentation.trees import build_instance_tree
-from clutt3r_core.update.depth_change import depth_changes, fit_iou, registration_result
 from clutt3r_core.update.associate import Association, Projection, associate, project_instances, unmatched_status
+from clutt3r_core.update.depth_change import depth_changes, fit_iou, registration_result
 from clutt3r_core.update.project import mask_iou
 from clutt3r_core.update.state import SceneState
 from clutt3r_core.update.types import TAU_SEM_BY_EMBEDDER, InstanceUpdate, NewMask, PoseProblem, UpdateConfig, UpdateResult
