@@ -219,17 +219,21 @@ class DaskExecutor(_Closing):
                    for i, it in enumerate(items)]
         try:
             for f in dask_completed(futures):
-                yield f.result()
-        except KilledWorker as e:
-            # Dask retried the task on other workers (distributed.scheduler.allowed-failures)
-            raise ExecutorError(
-                f"Dask workers died running {e.task} (on {e.allowed_failures + 1} worker(s)); the worker logs say why "
-                "(memory limit, a crash in native code); finished jobs are cached, rerun to resume"
-            ) from None
-        except (CommClosedError, OSError) as e:
-            where = self.address or "the local cluster"
-            raise ExecutorError(f"lost the connection to the Dask scheduler at {where} ({e}); "
-                                "finished jobs are cached, rerun to resume") from None
+                try:
+                    res = f.result()
+                except KilledWorker as e:
+                    # Dask retried the task on other workers (distributed.scheduler.allowed-failures)
+                    raise ExecutorError(
+                        f"Dask workers died running {e.task} (on {e.allowed_failures + 1} worker(s)); the worker "
+                        "logs say why (memory limit, a crash in native code); finished jobs are cached, rerun to resume"
+                    ) from None
+                except (CommClosedError, OSError) as e:
+                    if f.status == "error":
+                        raise  # the job's own error (a file it could not read), unchanged
+                    where = self.address or "the local cluster"
+                    raise ExecutorError(f"lost the connection to the Dask scheduler at {where} ({e}); "
+                                        "finished jobs are cached, rerun to resume") from None
+                yield res
         finally:
             # a failed or abandoned map leaves nothing running on the cluster
             if self._client is not None:

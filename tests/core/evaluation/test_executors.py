@@ -116,6 +116,8 @@ def test_a_job_error_reaches_the_caller_unchanged(cluster, tmp_path):
     with pytest.raises(SceneFileError) as e:
         list(cluster.map(runner.prepare_scene, [(broken, str(tmp_path))]))
     assert e.value.path == tmp_path / "no-such-scene"  # the error itself, with its fields
+    with pytest.raises(FileNotFoundError):  # an OSError of a job is the job's, not the connection's
+        list(cluster.map(Path.read_text, [tmp_path / "missing.txt"]))
     make = functools.partial(Setting, 8, "clean")  # Setting(8, "clean", masks=item) checks masks
     with pytest.raises(SceneError, match="unknown mask source 'nope'"):
         list(cluster.map(make, ["scene", "nope"]))
