@@ -10,6 +10,8 @@ import os
 from pathlib import Path
 
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from clutt3r_core import registry as reg
 from clutt3r_core.errors import Clutt3rError, MissingDependencyError, SceneError, SceneFileError
@@ -121,6 +123,15 @@ def test_a_job_error_reaches_the_caller_unchanged(cluster, tmp_path):
     make = functools.partial(Setting, 8, "clean")  # Setting(8, "clean", masks=item) checks masks
     with pytest.raises(SceneError, match="unknown mask source 'nope'"):
         list(cluster.map(make, ["scene", "nope"]))
+
+
+@settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.lists(st.integers(-1000, 1000), max_size=12))
+def test_every_item_comes_back_once(cluster, items):
+    """Any order, but each item's result exactly once, duplicates included (Dask must not merge
+    equal tasks: the runner's cache decides what is the same work)."""
+    assert sorted(cluster.map(abs, items)) == sorted(map(abs, items))
+    assert list(SerialExecutor().map(abs, items)) == [abs(x) for x in items]
 
 
 def test_a_worker_with_other_code_refuses_to_compute():
