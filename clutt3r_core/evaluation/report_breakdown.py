@@ -30,7 +30,8 @@ def _row(label: str, bs: list) -> list[str]:
     m = lambda f: float(np.mean([f(b) for b in bs]))  # noqa: E731
     row = [label, _f(m(lambda b: b.num_gt), 0 if len(bs) == 1 else 1), _f(m(lambda b: b.num_pred), 0 if len(bs) == 1 else 1),
            _f(m(lambda b: b.num_fragments), 0 if len(bs) == 1 else 1),
-           _f(m(lambda b: b.num_spurious + b.num_merged_objects + b.num_missed_objects), 0 if len(bs) == 1 else 1),
+           " / ".join(_f(m(f), 0 if len(bs) == 1 else 1) for f in (lambda b: b.num_spurious, lambda b: b.num_merged_objects,
+                                                                   lambda b: b.num_missed_objects)),
            _f(m(lambda b: b.ap)), _f(m(lambda b: b.ap_all_fixed))]
     row += [f"{_f(m(lambda b, k=k: b.gain(k)))} ({_f(100 * m(lambda b, k=k: b.cell_fraction(k)), 0)}%)" for k in ERROR_KINDS]
     return row
