@@ -90,7 +90,7 @@ def test_absorption_only_merges_and_keeps_every_labelled_supervoxel(on_a, sliver
     assert list(v2.scores) == sorted(v2.scores, reverse=True)
 
 
-def test_pipeline_absorbs_fragments_and_the_trace_replays_them():
+def test_pipeline_absorbs_fragments_and_the_trace_replays_them(tmp_path):
     from clutt3r_core.pipeline import PRESETS, instance_tree_json, segment
     from tests.core.test_pipeline import small_scene
 
@@ -109,3 +109,10 @@ def test_pipeline_absorbs_fragments_and_the_trace_replays_them():
     for m in absorbed:
         assert len({int(node_inst[i]) for i in m.a + m.b}) == 1
     assert len(instance_tree_json(seg)["initial"]["leaf2inst"]) == int(tr.nodes.is_leaf.sum())
+    # a saved run reads back with its absorptions and the same instances
+    from clutt3r_core.pipeline import load_run, save_run
+
+    back = load_run(save_run(seg, tmp_path / "run"))
+    assert back.trace.config == seg.trace.config and np.array_equal(back.instance, seg.instance)
+    assert [m.stage for m in back.trace.grouping.merges] == [m.stage for m in tr.grouping.merges]
+    assert np.array_equal(back.trace.node_instance(), node_inst)
