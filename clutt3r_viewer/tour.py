@@ -71,8 +71,8 @@ STEPS: tuple[TourStep, ...] = (
              "One new image after the grasp (frame {frame}): the stored instances are matched to its masks. "
              "{removed_text}", "Updates", "update", "overview", "update"),
     TourStep("pose", "8. The neighbour's new pose",
-             "{displaced_text} The replay is at the last of {n_pose} optimisation steps; drag the slider back "
-             "to watch the points move.", "Replay", "replay", "displaced", "pose"),
+             "{displaced_text} White: where it was. The replay is at the last of {n_pose} optimisation steps "
+             "(coloured by loss); drag the slider back to watch the points move.", "Replay", "replay", "displaced", "pose"),
 )
 
 
@@ -155,11 +155,11 @@ def step_camera(data: ViewerData, step: TourStep, view: int, focus: np.ndarray |
     if step.camera in ("target", "displaced") and focus is not None and len(focus):
         pts = np.asarray(focus, float)
         c = 0.5 * (np.percentile(pts, 5, axis=0) + np.percentile(pts, 95, axis=0))  # stray points do not pull it
-        r = float(np.percentile(np.linalg.norm(pts - c, axis=1), 90))
+        r = float(np.percentile(np.linalg.norm(pts - c, axis=1), 95))
         d = base.position - look
         d = d / np.linalg.norm(d)
-        # the object fills about half the view height: its neighbours stay in sight
-        dist = max(0.3, 2.0 * r / np.tan(base.fov / 2))
+        # the object fills about a third of the view height: its neighbours stay in sight
+        dist = max(0.3, 3.0 * r / np.tan(base.fov / 2))
         return _look(c + dist * d, c, base.fov)
     return base
 
@@ -189,8 +189,9 @@ def facts_of(data: ViewerData, story, view: int, node: int, event: int, pose_ste
     frame = story.post_frames[0] if story is not None and story.post_frames else -1
     removed = tuple(story.removed) if story is not None else ()
     displaced = tuple(story.displaced) if story is not None else ()
-    removed_text = (f"I{', I'.join(map(str, removed))} {'is' if len(removed) == 1 else 'are'} gone (grey), the "
-                    "others are kept." if removed else "No instance was found removed.")
+    removed_text = (f"I{', I'.join(map(str, removed))} {'is' if len(removed) == 1 else 'are'} gone (grey, like the "
+                    "table; the gripper stays where it grasped), the others are kept." if removed
+                    else "No instance was found removed.")
     if story is not None and story.true_removed >= 0 and story.true_removed not in removed:
         removed_text += f" (The object taken away was I{story.true_removed}: the update missed it.)"
     # the camera follows the pushed object when the ground truth names it and the update re-posed it

@@ -109,6 +109,7 @@ class TourPanel(Panel):
     exploring: bool = False
     applied: int = 0  # steps applied (tests wait on it)
     camera: "CameraPose | None" = None  # the current step's camera
+    before: "viser.PointCloudHandle | None" = None  # the pushed object where it was (pose step)
 
     @classmethod
     def available(cls, app: "ViewerApp") -> bool:
@@ -244,6 +245,9 @@ class TourPanel(Panel):
                     p.set_source(s, POSE_SOURCE)
                     p.set_event(s, src.num_events)
                 focus = self.pose_focus(d, src, facts.displaced)
+                self._show_before(s, facts.displaced)
+        if self.before is not None and (step.key != "pose" or waiting):
+            self.before.visible = False
         g = s.panel(GraspsPanel)
         if g is not None:  # the grasps belong to their step (and to the object taken away afterwards)
             for h in (g.all, g.selected, g.region, g.contacts):
@@ -262,6 +266,20 @@ class TourPanel(Panel):
         self.text.content = waiting or step.text.format(**facts.__dict__)
         if step.tab is not None:
             self.tab_opener.content = open_tab_html(step.tab, self.applied)
+
+    def _show_before(self, s: "Session", k: int) -> None:
+        """The pushed object's points where they were before the interaction, small and white: the
+        replay's last step shows where they went, so both ends of the motion are in sight."""
+        import numpy as np
+
+        if k < 0:
+            return
+        pts = s.app.data.seg.points[s.lod_idx[s.app.data.seg.instance[s.lod_idx] == k]].astype(np.float32)
+        if self.before is not None:
+            self.before.remove()
+        self.before = s.client.scene.add_point_cloud(
+            "/tour/pose_before", pts, np.full((len(pts), 3), 255, np.uint8), point_size=s.app.point_size * 0.6,
+            point_shape="circle")
 
     @staticmethod
     def _set_camera(s: "Session", pose) -> None:
