@@ -1,4 +1,4 @@
-"""Screenshots of every guided-tour step (docs/img/tour/NN_key.png) from a demo run.
+"""Screenshots of every guided-tour step (docs/img/tour/NN_key.jpg) from a demo run.
 
     .venv/bin/clutt3r demo --out runs/demo      # once (Ctrl-C after "query, grasps ready")
     .venv/bin/python scripts/tour_screenshots.py runs/demo docs/img/tour
@@ -60,8 +60,8 @@ def main(run: str, out: str, settle: float = 4.0) -> None:
                     while tour.applied <= n and time.time() - t0 < 60:
                         time.sleep(0.1)
                 time.sleep(settle)  # software WebGL: a few frames
-                p = Path(out) / f"{k + 1:02d}_{step.key}.png"
-                page.screenshot(path=str(p))
+                p = Path(out) / f"{k + 1:02d}_{step.key}.jpg"
+                page.screenshot(path=str(p), quality=85)  # jpeg: ~0.15 MB a step
                 print(p, flush=True)
             b.close()
     finally:
