@@ -115,6 +115,9 @@ ADDITIONS: tuple[Addition, ...] = (
     Addition("absorb-fragments", "an instance that won < 20 % of its masks' footprint and holds < 10 % of the points of "
              "the instance that won most of it is merged into that instance",
              (("refine.min_won_fraction", 0.2, 0.0),)),
+    Addition("unlabel-weak-echoes", "a fused voxel with < 20 % of the raw points of a voxel 1-2 edges away along its normal "
+             "is depth noise off that surface: left unlabelled",
+             (("refine.weak_echo_ratio", 0.2, 0.0),)),
     Addition("pixel-stride", "1080p views are sampled every 3rd pixel before voxelisation (none at 640x480)",
              (("pointcloud.pixel_stride", 0, 1),)),
 )
@@ -194,6 +197,7 @@ ADDED_AFTER_V1: dict[str, Any] = {
     "grouping.substitute_stranded_parents": False,
     "vote.revote_dropped": False,
     "refine.min_won_fraction": 0.0,
+    "refine.weak_echo_ratio": 0.0,
 }
 """Fields added after trace version 1, each with the value that reproduces the code that wrote
 such a trace (issue 13: the first two only made existing rules switchable; the last two are
@@ -221,7 +225,8 @@ def _fill_added(data: dict) -> dict:
         if not rest:
             out.setdefault(head, value)
         elif head not in out and head in _STAGES_ADDED_AFTER_V1:  # its defaults, this field as the old code behaved
-            out[head] = {**dataclasses.asdict(getattr(SegmentConfig(), head)), rest: value}
+            out[head] = {**dataclasses.asdict(getattr(SegmentConfig(), head)),
+                         **{p.partition(".")[2]: v for p, v in ADDED_AFTER_V1.items() if p.startswith(head + ".")}}
         elif isinstance(out.get(head), dict) and rest not in out[head]:
             out[head] = {**out[head], rest: value}
     return out

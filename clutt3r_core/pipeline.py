@@ -32,7 +32,7 @@ from clutt3r_core.segmentation.grouping import (
     semantic_similarity,
     spatial_similarity,
 )
-from clutt3r_core.segmentation.refine import absorb_fragments
+from clutt3r_core.segmentation.refine import absorb_fragments, weak_echoes
 from clutt3r_core.segmentation.trace import StageClock, StageTiming, Trace
 from clutt3r_core.segmentation.trees import InstanceTree, build_instance_tree
 from clutt3r_core.segmentation.vote import supervoxel_vote
@@ -201,6 +201,10 @@ def segment(
         # ours (issue 13): fragment groups join the instance that won their masks' footprint
         grouping, vote = absorb_fragments(grouping, vote, occupancy, sv.counts, s_spat, s_sem, revote, config.refine)
         instance = vote.sv_label[sv.labels]
+        # ours (issue 13): depth noise spilling off a surface stays in the cloud, unlabelled
+        echo = weak_echoes(cloud.points, cloud.normals, cloud.counts, config.pointcloud.voxel_size,
+                           config.refine.weak_echo_ratio)
+        instance = np.where(echo, -1, instance)
     tick("done")
     if bar is not None:
         bar.close()

@@ -95,6 +95,7 @@ def test_pipeline_absorbs_fragments_and_the_trace_replays_them(tmp_path):
     from tests.core.test_pipeline import small_scene
 
     assert PRESETS["paper"].refine.min_won_fraction == 0.0 and PRESETS["default"].refine.min_won_fraction > 0
+    assert PRESETS["paper"].refine.weak_echo_ratio == 0.0 and PRESETS["default"].refine.weak_echo_ratio > 0
     scene = small_scene(0, "harsh")
     seg = segment(scene)
     tr = seg.trace
@@ -116,3 +117,41 @@ def test_pipeline_absorbs_fragments_and_the_trace_replays_them(tmp_path):
     assert back.trace.config == seg.trace.config and np.array_equal(back.instance, seg.instance)
     assert [m.stage for m in back.trace.grouping.merges] == [m.stage for m in tr.grouping.merges]
     assert np.array_equal(back.trace.node_instance(), node_inst)
+
+
+def _slab(counts_by_layer: dict[int, int], voxel: float = 0.005) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A 10 x 10 patch of voxels per z layer (normals +z); counts per layer."""
+    pts, cnt = [], []
+    for z, c in counts_by_layer.items():
+        g = np.mgrid[0:10, 0:10].reshape(2, -1).T
+        pts.append(np.column_stack([(g + 0.5) * voxel, np.full(len(g), (z + 0.5) * voxel)]))
+        cnt.append(np.full(len(g), c))
+    p = np.concatenate(pts)
+    return p, np.tile([0.0, 0.0, 1.0], (len(p), 1)), np.concatenate(cnt)
+
+
+def test_weak_echoes_are_the_sparse_flanks_of_a_dense_surface():
+    from clutt3r_core.segmentation.refine import weak_echoes
+
+    p, n, c = _slab({0: 2, 1: 3, 2: 40, 3: 4, 4: 30})  # flanks of 2-4 points around a 40-point layer
+    e = weak_echoes(p, n, c, 0.005, 0.2)
+    layer = np.round(p[:, 2] / 0.005 - 0.5).astype(int)
+    assert e[layer == 0].all() and e[layer == 1].all() and e[layer == 3].all()
+    assert not e[layer == 2].any() and not e[layer == 4].any()  # a second dense face 2 voxels away stays
+    assert not weak_echoes(p, n, c, 0.005, 0.0).any()
+    # normals the other way round find the same neighbours
+    assert np.array_equal(weak_echoes(p, -n, c, 0.005, 0.2), e)
+    # a lone sparse layer (a surface seen by one view) is not an echo of anything
+    p1, n1, c1 = _slab({0: 3})
+    assert not weak_echoes(p1, n1, c1, 0.005, 0.2).any()
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.integers(1, 60), min_size=5, max_size=5), st.floats(0.05, 0.9))
+def test_the_densest_layer_is_never_an_echo(counts, ratio):
+    from clutt3r_core.segmentation.refine import weak_echoes
+
+    p, n, c = _slab(dict(enumerate(counts)))
+    e = weak_echoes(p, n, c, 0.005, ratio)
+    assert not e[c == max(counts)].any()
+    assert not weak_echoes(p, n, c, 0.005, min(ratio, min(counts) / max(counts) * (1 - 1e-9))).any()  # no layer under it
