@@ -159,3 +159,17 @@ def test_demo_on_the_real_sample_updates_from_its_post_grasp_frames(tmp_path):
     assert s.post_frames == (8,) and not s.generated and s.true_removed == -1
     assert len(list((tmp_path / "seq1" / "updates").glob("*/update.json"))) == 1
     assert s.removed  # frame 8 is after a grasp: something is gone
+
+
+def test_export_html_command_writes_a_page_and_refuses_a_non_run(demo_run, tmp_path, capfd):
+    from clutt3r_core.cli import available_commands, main
+
+    assert "export-html" in available_commands()
+    out = tmp_path / "page.html"
+    main(["export-html", str(demo_run), str(out), "--max-points", "20000"])
+    html = out.read_text()
+    assert html.lstrip().lower().startswith("<!doctype html") and "__VISER_EMBED_DATA__" in html
+    with pytest.raises(SystemExit) as ei:
+        main(["export-html", str(tmp_path / "nothing"), str(tmp_path / "x.html")])
+    assert ei.value.code == 2 and not (tmp_path / "x.html").exists()
+    assert "nothing" in capfd.readouterr().err
