@@ -70,6 +70,8 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=100)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--paper-with", action="store_true", help="also the paper-with-<key> rows (AP only)")
+    ap.add_argument("--only", nargs="*", default=None, metavar="KEY",
+                    help="only these additions (config.ADDITIONS keys), besides ours and paper")
     ap.add_argument("--samples", type=Path, default=Path("/work/shared/data/clutt3r-samples"))
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmark" / "ablation")
     ap.add_argument("--markdown", type=Path, default=ROOT / "docs" / "benchmark" / "ablation.md")
@@ -89,7 +91,11 @@ def main() -> None:
         cfg = asdict(SynthConfig(seed=a.seed, preset=d, views=8, width=640, height=480,
                                  mask_noise="grounded-sam-like", depth_noise="realsense"))
         scenes.append(SceneSpec(f"synth_{d}_{a.seed:04d}_realsense", d, synth=cfg, identity=_sha([cfg, synth_version()])))
-    methods = ["ours", "paper"] + [m for m in ABLATION_METHODS if a.paper_with or m.startswith("ours-no-")]
+    def wanted(m: str) -> bool:
+        key = m.removeprefix("ours-no-").removeprefix("paper-with-")
+        return (a.paper_with or m.startswith("ours-no-")) and (a.only is None or key in a.only)
+
+    methods = ["ours", "paper"] + [m for m in ABLATION_METHODS if wanted(m)]
     jobs = plan_jobs(scenes, methods, [Setting()], a.cache.resolve())
     ex = SerialExecutor() if a.workers <= 1 else ProcessExecutor(a.workers)
     results = run_benchmark(jobs, ex, progress=True)
@@ -98,7 +104,7 @@ def main() -> None:
     samples = [p for p in (a.samples / "sample_seq1", a.samples / "sample_seq4") if (p / "data" / "instance_tree.json").is_file()]
     if not samples:
         print(f"no real samples under {a.samples}: agreement columns left out", file=sys.stderr)
-    ag_methods = ["ours", "paper"] + [m for m in ABLATION_METHODS if m.startswith("ours-no-")]
+    ag_methods = [m for m in methods if not m.startswith("paper-with-")]
     todo = [(m, str(s), str(a.cache.resolve())) for m in ag_methods for s in samples]
     agreement: dict[str, dict[str, float]] = {}
     seconds = {}
