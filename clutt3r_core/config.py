@@ -115,9 +115,6 @@ ADDITIONS: tuple[Addition, ...] = (
     Addition("absorb-fragments", "an instance that won < 20 % of its masks' footprint and holds < 10 % of the points of "
              "the instance that won most of it is merged into that instance",
              (("refine.min_won_fraction", 0.2, 0.0),)),
-    Addition("unlabel-weak-echoes", "a fused voxel with < 20 % of the raw points of a voxel 1-2 edges away along its normal "
-             "is depth noise off that surface: left unlabelled",
-             (("refine.weak_echo_ratio", 0.2, 0.0),)),
     Addition("pixel-stride", "1080p views are sampled every 3rd pixel before voxelisation (none at 640x480)",
              (("pointcloud.pixel_stride", 0, 1),)),
 )

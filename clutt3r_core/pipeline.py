@@ -201,7 +201,7 @@ def segment(
         # ours (issue 13): fragment groups join the instance that won their masks' footprint
         grouping, vote = absorb_fragments(grouping, vote, occupancy, sv.counts, s_spat, s_sem, revote, config.refine)
         instance = vote.sv_label[sv.labels]
-        # ours (issue 13): depth noise spilling off a surface stays in the cloud, unlabelled
+        # ours (issue 13), off by default: depth noise spilling off a surface left unlabelled
         echo = weak_echoes(cloud.points, cloud.normals, cloud.counts, config.pointcloud.voxel_size,
                            config.refine.weak_echo_ratio)
         instance = np.where(echo, -1, instance)

@@ -95,7 +95,8 @@ def test_pipeline_absorbs_fragments_and_the_trace_replays_them(tmp_path):
     from tests.core.test_pipeline import small_scene
 
     assert PRESETS["paper"].refine.min_won_fraction == 0.0 and PRESETS["default"].refine.min_won_fraction > 0
-    assert PRESETS["paper"].refine.weak_echo_ratio == 0.0 and PRESETS["default"].refine.weak_echo_ratio > 0
+    # off in both: the grasp planner would count an object's own unlabelled flanks as foreign points
+    assert PRESETS["paper"].refine.weak_echo_ratio == 0.0 and PRESETS["default"].refine.weak_echo_ratio == 0.0
     scene = small_scene(0, "harsh")
     seg = segment(scene)
     tr = seg.trace
