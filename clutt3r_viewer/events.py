@@ -88,6 +88,9 @@ class PoseIterations:
             a ramp from the smallest to the largest value of the whole optimisation).
         points0: (N, 3) float32 the run's point positions, metres.
         name: shown in the source list.
+        context_rgb: optional (N, 3) uint8 colours of the points; static points (instance -1)
+            are drawn in them, dimmed, so the moving object stays readable against its
+            neighbours (None: static points grey, like the table).
     """
 
     instance: np.ndarray
@@ -95,6 +98,7 @@ class PoseIterations:
     residual: np.ndarray
     points0: np.ndarray
     name: str = "pose optimisation"
+    context_rgb: np.ndarray | None = None
     _lo_hi: tuple[float, float] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -103,6 +107,8 @@ class PoseIterations:
             raise ValueError(f"poses {self.poses.shape} != (T, I, 4, 4) = ({t}, {i}, 4, 4)")
         if self.instance.shape != (len(self.points0),) or int(self.instance.max(initial=-1)) >= i:
             raise ValueError("instance must be (N,) with ids < I")
+        if self.context_rgb is not None and self.context_rgb.shape != (len(self.points0), 3):
+            raise ValueError(f"context_rgb {self.context_rgb.shape} != (N, 3) = ({len(self.points0)}, 3)")
         fin = self.residual[np.isfinite(self.residual)]
         object.__setattr__(self, "_lo_hi", (float(fin.min()), float(fin.max())) if len(fin) else (0.0, 1.0))
 
@@ -124,7 +130,11 @@ class PoseIterations:
         r = np.full(len(idx), np.nan)
         has = inst >= 0
         r[has] = self.residual[self._it(n)][inst[has]]
-        return ramp_colors(r, *self._lo_hi)
+        out = ramp_colors(r, *self._lo_hi)
+        if self.context_rgb is not None:
+            # dimmed to 55 % so the ramp-coloured moving points stay the brightest thing
+            out[~has] = (self.context_rgb[idx[~has]].astype(np.float32) * 0.55).astype(np.uint8)
+        return out
 
     def points(self, n: int, idx: np.ndarray) -> np.ndarray | None:
         p = self.points0[idx].astype(np.float64)

@@ -71,7 +71,7 @@ STEPS: tuple[TourStep, ...] = (
              "One new image after the grasp (frame {frame}): the stored instances are matched to its masks. "
              "{removed_text}", "Updates", "update", "overview", "update"),
     TourStep("pose", "8. The neighbour's new pose",
-             "{displaced_text} White: where it was. The replay is at the last of {n_pose} optimisation steps "
+             "{displaced_text} White: where it was. The replay is at the last of {n_pose} fitting steps "
              "(coloured by loss); drag the slider back to watch the points move.", "Replay", "replay", "displaced", "pose"),
 )
 
@@ -200,8 +200,8 @@ def facts_of(data: ViewerData, story, view: int, node: int, event: int, pose_ste
     if not displaced:
         displaced_text = "No instance was found displaced."
     elif len(displaced) == 1:
-        displaced_text = (f"I{disp} was pushed: its pose is re-fitted to the new image (chamfer, photometric and "
-                          "height losses).")
+        displaced_text = (f"I{disp} was pushed: its pose is re-fitted to the new view (ICP against the new depth "
+                          "when the view has depth, else the paper's chamfer, photometric and height losses).")
     else:
         displaced_text = (f"The update re-posed I{', I'.join(map(str, displaced))} (a static object can be flagged "
                           f"too, docs/update.md); the camera follows I{disp}.")

@@ -116,7 +116,8 @@ def update_pose_events(data) -> PoseIterations | None:
     moved_ids = sorted({r.instance for _, rs in moving for r in rs})
     inst = np.where(np.isin(seg.instance, moved_ids), seg.instance, -1).astype(np.int64)
     return PoseIterations(instance=inst, poses=np.stack(poses), residual=np.stack(resid),
-                          points0=seg.points, name="scene updates: pose iterations")
+                          points0=seg.points, name="scene updates: pose iterations",
+                          context_rgb=np.asarray(seg.colors, np.uint8))
 
 
 register_update_loader(load_update_frames)

@@ -120,6 +120,21 @@ def test_pose_iterations_reject_mismatched_shapes():
                        points0=np.zeros((4, 3), np.float32))
 
 
+def test_pose_replay_draws_static_points_in_their_own_dimmed_colour():
+    # the tour's pose step: grey static points on a grey background hid the scene around the pushed object
+    pts = np.zeros((4, 3), np.float32)
+    rgb = np.array([[200, 100, 50], [10, 20, 30], [255, 255, 255], [0, 0, 0]], np.uint8)
+    inst = np.array([-1, 0, -1, 0])
+    src = PoseIterations(instance=inst, poses=np.tile(np.eye(4), (2, 1, 1, 1)), residual=np.ones((2, 1)),
+                         points0=pts, context_rgb=rgb)
+    col = src.colors(1, np.arange(4)).astype(int)
+    assert np.all(np.abs(col[[0, 2]] - rgb[[0, 2]] * 0.55) <= 1)
+    plain = PoseIterations(instance=inst, poses=src.poses, residual=src.residual, points0=pts)
+    assert np.array_equal(col[[1, 3]], plain.colors(1, np.arange(4))[[1, 3]])  # moving points: the loss ramp
+    with pytest.raises(ValueError):
+        PoseIterations(instance=inst, poses=src.poses, residual=src.residual, points0=pts, context_rgb=rgb[:3])
+
+
 def test_default_camera_frames_the_objects_not_the_support(tiny_data):
     d = tiny_data
     cam = default_camera(d)
