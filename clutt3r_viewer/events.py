@@ -122,8 +122,9 @@ class PoseIterations:
     def text(self, n: int) -> str:
         t = self._it(n)
         r = self.residual[t]
-        return f"**iteration {t}/{self.num_events}**: mean residual {float(np.nanmean(r)):.4g}" if len(r) else \
-            f"**iteration {t}/{self.num_events}**"
+        # iteration 0 has no residual yet (all NaN): no mean to show
+        return f"**iteration {t}/{self.num_events}**: mean residual {float(np.nanmean(r)):.4g}" \
+            if np.isfinite(r).any() else f"**iteration {t}/{self.num_events}**"
 
     def colors(self, n: int, idx: np.ndarray) -> np.ndarray:
         inst = self.instance[idx]
