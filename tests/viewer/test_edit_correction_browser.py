@@ -152,8 +152,10 @@ def test_a_whole_correction_in_the_browser(browser, edit_app, artifacts, tmp_pat
     page.get_by_role("button", name="Redo").click()
     _wait(lambda: app.annotations.num_ops == 5 and app.annotations.current.categories[k_new] == "bowl", what="redo")
     assert [e["op"] for e in _log(run)] == ["merge", "split", "set_category", "undo", "redo"]
-    _wait(lambda: "instances labelled" in panel.progress.content, what="progress line")
-    assert "1/" in panel.progress.content
+    # the progress line is refreshed after the log write, so it can still show the state before the redo
+    # for a moment (seen once in a clean-clone CI run): wait for it to count the labelled instance
+    _wait(lambda: "instances labelled" in panel.progress.content and "1/" in panel.progress.content,
+          what="progress line counts the labelled instance")
 
     # 7. export from the tab; the benchmark's metric scores the corrected labels at AP 100
     out = tmp_path / "exported"
