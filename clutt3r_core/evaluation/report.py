@@ -25,7 +25,7 @@ __all__ = ["write_report", "summary_rows", "ablation_tables"]
 
 _NAMES = {
     "ours": "Clutt3R (ours, default)",
-    "paper": "Clutt3R paper-literal",
+    "paper": "Clutt3R, paper's text (additions off)",
     "no-spatial": "w/o S_spatial",
     "no-substitution": "w/o substitution",
     "naive": "Naive 3D-IoU merging",
