@@ -101,11 +101,10 @@ within the sampling noise; measured on seed 200: spheres, cans and boxes' 180 de
 other turns give 2-10 x)."""
 
 
-def symmetry_axes(points: np.ndarray, seed: int = 0) -> list[np.ndarray]:
-    """Unit principal axes about which EVERY turn of the 10 deg grid is a symmetry (continuous
-    symmetry: a can, a bowl; two or more such axes: a ball)."""
-    from scipy.spatial.transform import Rotation
-
+def _symmetry_probe(points: np.ndarray, seed: int) -> tuple[cKDTree, np.ndarray, float, np.ndarray]:
+    """Two disjoint random halves of the centred surface (a k-d tree of one, the other as
+    probes), the probes' mean nearest distance (the surface's own sampling floor) and the
+    principal axes (columns of V): what both symmetry tests start from."""
     rng = np.random.default_rng(seed)
     idx = rng.permutation(len(points))
     h = min(len(points) // 2, 1500)
@@ -114,6 +113,15 @@ def symmetry_axes(points: np.ndarray, seed: int = 0) -> list[np.ndarray]:
     tree = cKDTree(A)
     floor = float(tree.query(B)[0].mean())
     _, V = np.linalg.eigh(np.cov((points - c).T))
+    return tree, B, floor, V
+
+
+def symmetry_axes(points: np.ndarray, seed: int = 0) -> list[np.ndarray]:
+    """Unit principal axes about which EVERY turn of the 10 deg grid is a symmetry (continuous
+    symmetry: a can, a bowl; two or more such axes: a ball)."""
+    from scipy.spatial.transform import Rotation
+
+    tree, B, floor, V = _symmetry_probe(points, seed)
     out = []
     for ax in V.T:
         if all(tree.query(B @ Rotation.from_rotvec(ax * np.deg2rad(a)).as_matrix().T)[0].mean() <= SYM_TOL * floor
@@ -126,14 +134,7 @@ def symmetries(points: np.ndarray, seed: int = 0) -> list[np.ndarray]:
     """Rotation matrices (about the centroid) that map the object's surface onto itself."""
     from scipy.spatial.transform import Rotation
 
-    rng = np.random.default_rng(seed)
-    idx = rng.permutation(len(points))
-    h = min(len(points) // 2, 1500)
-    c = points.mean(axis=0)
-    A, B = points[idx[:h]] - c, points[idx[h : 2 * h]] - c
-    tree = cKDTree(A)
-    floor = float(tree.query(B)[0].mean())
-    _, V = np.linalg.eigh(np.cov((points - c).T))
+    tree, B, floor, V = _symmetry_probe(points, seed)
     out = [np.eye(3)]
     for ax in V.T:
         for ang in range(SYM_STEP_DEG, 360, SYM_STEP_DEG):

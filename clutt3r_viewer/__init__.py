@@ -18,6 +18,7 @@ from clutt3r_viewer.loading import load_viewer_data, register_update_loader, tex
 
 __all__ = [
     "serve",
+    "serve_until_interrupted",
     "start",
     "ViewerData",
     "GraspSet",
@@ -124,6 +125,12 @@ def serve(run_or_scene, port: int = 8080, host: str = "127.0.0.1", scene=None, e
     """Start the viewer (see ``start``), print its URL and serve until Ctrl-C."""
     app = start(run_or_scene, port=port, host=host, scene=scene, embedder=embedder, lod=lod, images=images)
     print(f"Clutt3R viewer: {app.url}  (Ctrl-C to stop)", flush=True)
+    serve_until_interrupted(app)
+    return app
+
+
+def serve_until_interrupted(app) -> None:
+    """Block until Ctrl-C, then stop the viewer's server (``serve`` and ``clutt3r demo``)."""
     try:
         while True:
             time.sleep(1.0)
@@ -131,4 +138,3 @@ def serve(run_or_scene, port: int = 8080, host: str = "127.0.0.1", scene=None, e
         pass
     finally:
         app.stop()
-    return app

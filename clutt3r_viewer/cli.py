@@ -94,7 +94,7 @@ def demo_command(
     import time
 
     from clutt3r_core.demo import DEMO_JSON, DemoConfig, build_demo, complete_demo
-    from clutt3r_viewer import start
+    from clutt3r_viewer import serve_until_interrupted, start
     from clutt3r_viewer.panels.tour import attach_story
 
     t0 = time.perf_counter()
@@ -118,13 +118,7 @@ def demo_command(
                 raise
 
         threading.Thread(target=finish, daemon=True).start()
-    try:
-        while True:
-            time.sleep(1.0)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        app.stop()
+    serve_until_interrupted(app)
 
 
 def make_demo_run(out: Path, seed: int = 1, preset: str = "intermediate", views: int = 8,
