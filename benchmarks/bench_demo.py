@@ -15,20 +15,13 @@ import argparse
 import json
 import re
 import shutil
-import socket
 import subprocess
 import sys
 import time
 from pathlib import Path
 
-ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-        "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+from clutt3r_viewer.headless import CHROMIUM, CHROMIUM_ARGS, free_port
 
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def main() -> None:
@@ -40,7 +33,7 @@ def main() -> None:
     out = Path(a.out)
     if not a.keep:
         shutil.rmtree(out, ignore_errors=True)
-    port = _free_port()
+    port = free_port()
     exe = Path(sys.executable).parent / "clutt3r"
     t0 = time.perf_counter()
     proc = subprocess.Popen([str(exe), "demo", "--out", str(out), "--port", str(port), *a.extra],
@@ -61,7 +54,7 @@ def main() -> None:
         from playwright.sync_api import sync_playwright
 
         with sync_playwright() as pw:
-            b = pw.chromium.launch(executable_path="/usr/bin/chromium", args=ARGS)
+            b = pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
             page = b.new_page(viewport={"width": 1280, "height": 800})
             page.goto(url)
             page.get_by_text("1. The views and their mask candidates").wait_for(timeout=120_000)

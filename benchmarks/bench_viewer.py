@@ -15,22 +15,15 @@ from __future__ import annotations
 
 import argparse
 import io
-import socket
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-        "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+from clutt3r_viewer.headless import CHROMIUM, CHROMIUM_ARGS, free_port
+
 SEQ4 = Path(__file__).resolve().parents[1].parent / "shared/data/clutt3r-samples/sample_seq4/data"
-
-
-def _port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def _has_cloud(png: bytes) -> bool:
@@ -46,7 +39,7 @@ def measure(name: str, data, lod: str, browser) -> dict:
     bytes_rx = [0, 0]
     big = []  # (time, size) of large frames: the point cloud message
     t0 = time.perf_counter()
-    app = clutt3r_viewer.start(data, port=_port(), lod=lod)
+    app = clutt3r_viewer.start(data, port=free_port(), lod=lod)
     t_server = time.perf_counter() - t0
     page = browser.new_page(viewport={"width": 1280, "height": 800})
 
@@ -116,7 +109,7 @@ def main() -> None:
             print(f"sample_seq4 segmented in {time.perf_counter() - t:.1f} s")
         cases.append(("sample_seq4 8 views 1920x1080", build_viewer_data(load_run(cache), sc4)))
     with sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path="/usr/bin/chromium", args=ARGS)
+        browser = pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
         rows = [measure(n, d, a.lod, browser) for n, d in cases]
         browser.close()
     print("| case | points | LOD | canvas (s) | cloud message in (s) | launch→first frame (s) | bytes at first frame |"

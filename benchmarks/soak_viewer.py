@@ -34,7 +34,6 @@ import asyncio
 import json
 import os
 import shutil
-import socket
 import subprocess
 import sys
 import threading
@@ -44,16 +43,10 @@ from pathlib import Path
 
 import numpy as np
 
-ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-        "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+from clutt3r_viewer.headless import CHROMIUM, CHROMIUM_ARGS, free_port
+
 ROOT = Path(__file__).resolve().parents[1]
 QUERIES = ["the red mug", "a yellow box", "the bottle", "blue thing", "banana", "the can"]
-
-
-def _port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def _rss_mb(pid: int) -> float:
@@ -154,7 +147,7 @@ def main() -> None:
     from clutt3r_viewer.panels import QueryPanel, ReplayPanel
 
     run = make_run(a.workdir)
-    app = clutt3r_viewer.start(run, port=_port())
+    app = clutt3r_viewer.start(run, port=free_port())
     n_points = len(app.data.seg.points)
     print(f"serving {run} ({n_points:,} points, {len(app.data.views)} views) at {app.url} to {a.tabs} "
           f"{a.clients} tabs for {a.minutes:g} min", flush=True)
@@ -168,7 +161,7 @@ def main() -> None:
             from playwright.sync_api import sync_playwright
 
             pw = sync_playwright().start()
-            browser = pw.chromium.launch(executable_path="/usr/bin/chromium", args=ARGS)
+            browser = pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
             for _ in range(n_pages):
                 before = set(app.sessions)
                 page = browser.new_page(viewport={"width": 1280, "height": 800})

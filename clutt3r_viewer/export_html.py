@@ -10,22 +10,16 @@ guided tour offer the same page as a download.
 
 from __future__ import annotations
 
-import socket
 from pathlib import Path
 
 import numpy as np
 
+from clutt3r_viewer.headless import free_port
 from clutt3r_viewer.data import ViewerData, label_colors, lod_indices, ramp_colors
 
 __all__ = ["scene_html", "export_html", "MAX_POINTS"]
 
 MAX_POINTS = 200_000  # points embedded (level of detail): a 200k-point page is ~3 MB and opens in a second
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def scene_html(data: ViewerData, instance: np.ndarray | None = None, max_points: int = MAX_POINTS,
@@ -47,7 +41,7 @@ def scene_html(data: ViewerData, instance: np.ndarray | None = None, max_points:
     if lab.shape != (len(seg.points),):
         raise ValueError(f"instance labels must be ({len(seg.points)},), got {lab.shape}")
     # a private server on a free local port: as_html() serialises its broadcast scene; no tab connects
-    server = viser.ViserServer(host="127.0.0.1", port=_free_port(), verbose=False)
+    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
     try:
         sc = server.scene
         sc.set_up_direction("+z")

@@ -9,19 +9,12 @@ playwright) at 1280x960, clicks Next through the tour and saves one page screens
 
 from __future__ import annotations
 
-import socket
 import sys
 import time
 from pathlib import Path
 
-ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-        "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+from clutt3r_viewer.headless import CHROMIUM, CHROMIUM_ARGS, free_port
 
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def main(run: str, out: str, settle: float = 4.0) -> None:
@@ -35,12 +28,12 @@ def main(run: str, out: str, settle: float = 4.0) -> None:
     story = load_story(run)
     if story is None:
         raise SystemExit(f"{run}: not a demo run (no demo.json); run `clutt3r demo --out {run}` first")
-    app = clutt3r_viewer.start(run, port=_free_port())
+    app = clutt3r_viewer.start(run, port=free_port())
     attach_story(app, story)
     Path(out).mkdir(parents=True, exist_ok=True)
     try:
         with sync_playwright() as pw:
-            b = pw.chromium.launch(executable_path="/usr/bin/chromium", args=ARGS)
+            b = pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
             page = b.new_page(viewport={"width": 1280, "height": 960})
             page.goto(app.url)
             page.wait_for_selector("canvas", timeout=60_000)

@@ -10,7 +10,6 @@ replay, Alt+clicks a point for "Why here?") and writes small PNGs (palette, < 30
 from __future__ import annotations
 
 import io
-import socket
 import sys
 import time
 from pathlib import Path
@@ -20,11 +19,11 @@ from PIL import Image
 from playwright.sync_api import sync_playwright
 
 import clutt3r_viewer
+from clutt3r_viewer.headless import CHROMIUM, CHROMIUM_ARGS, free_port
 from clutt3r_viewer.panels import ExplainPanel
 from clutt3r_viewer.selection import ScreenCamera
 
 OUT = Path(__file__).resolve().parent
-ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking"]
 
 
 def save(png: bytes, name: str, width: int = 1000) -> None:
@@ -44,12 +43,9 @@ def wait(pred, timeout=30.0):
 
 
 def main(run: str, a: str, b: str) -> None:
-    with socket.socket() as s_:
-        s_.bind(("127.0.0.1", 0))
-        port = s_.getsockname()[1]
-    app = clutt3r_viewer.start(run, port=port)
+    app = clutt3r_viewer.start(run, port=free_port())
     with sync_playwright() as pw:
-        br = pw.chromium.launch(executable_path="/usr/bin/chromium", args=ARGS)
+        br = pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
         page = br.new_page(viewport={"width": 1400, "height": 860})
         page.goto(app.url)
         page.wait_for_selector("canvas", timeout=60_000)

@@ -7,13 +7,13 @@ ranks instances by colour: enough to drive the Query tab's callback path end to 
 
 from __future__ import annotations
 
-import socket
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from clutt3r_viewer.headless import free_port  # noqa: F401 (the browser tests import it from here)
 from clutt3r_core.embeddings import AppearanceEmbedder, register_embedder
 
 COLOURS = {"red": (220, 30, 30), "green": (30, 200, 40), "blue": (30, 60, 220), "yellow": (230, 220, 30),
@@ -41,12 +41,6 @@ class FakeTextEmbedder:
 
 
 register_embedder("fake-text", FakeTextEmbedder)
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 @pytest.fixture(scope="session")

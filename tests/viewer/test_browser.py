@@ -14,14 +14,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from clutt3r_viewer.headless import CHROMIUM, CHROMIUM_ARGS
 from clutt3r_viewer.panels import TreePanel
 from tests.viewer.conftest import free_port
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
-CHROMIUM = Path("/usr/bin/chromium")
-ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-        "--disable-background-networking", "--disable-component-update", "--disable-sync"]
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +28,7 @@ def browser():
         pytest.skip(f"chromium not found at {CHROMIUM} (apt-get install chromium); browser tests skipped")
     pw_mod = pytest.importorskip("playwright.sync_api", reason="the playwright package is not installed")
     with pw_mod.sync_playwright() as pw:
-        b = pw.chromium.launch(executable_path=str(CHROMIUM), args=ARGS)
+        b = pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
         yield b
         b.close()
 
