@@ -138,13 +138,17 @@ class Camera:
         vs, us = np.mgrid[0 : self.height : stride, 0 : self.width : stride]
         z = depth[vs, us]
         ok = np.isfinite(z) & (z > 0)
-        us, vs, z = us[ok], vs[ok], z[ok].astype(np.float64)
+        us, vs = us[ok], vs[ok]
+        return self.pixels_to_world(us, vs, z[ok]), (vs.astype(np.int64) * self.width + us.astype(np.int64))
+
+    def pixels_to_world(self, us: np.ndarray, vs: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """(N, 3) float64 world points of pixels (column ``us``, row ``vs``) at depths ``z`` (metres)."""
+        z = np.asarray(z, dtype=np.float64)
         x = (us - self.cx) / self.fx * z
         y = (vs - self.cy) / self.fy * z
         pc = np.stack([x, y, z], axis=1)
         T = self.T_world_camera
-        pw = pc @ T[:3, :3].T + T[:3, 3]
-        return pw, (vs.astype(np.int64) * self.width + us.astype(np.int64))
+        return pc @ T[:3, :3].T + T[:3, 3]
 
 
 @dataclass(frozen=True, eq=False)

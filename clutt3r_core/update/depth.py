@@ -149,12 +149,7 @@ def mask_points(camera: Camera, depth: np.ndarray, mask: np.ndarray, exclude: np
     if len(us) > max_points:
         idx = np.sort(np.random.default_rng(seed).choice(len(us), max_points, replace=False))
         us, vs = us[idx], vs[idx]
-    z = depth[vs, us].astype(np.float64)
-    x = (us - camera.cx) * z / camera.fx
-    y = (vs - camera.cy) * z / camera.fy
-    pc = np.stack([x, y, z], axis=1)
-    T = camera.T_world_camera
-    return pc @ T[:3, :3].T + T[:3, 3]
+    return camera.pixels_to_world(us, vs, depth[vs, us])
 
 
 def start_rotations(yaw_step_deg: float = 30.0, tilts: bool = True) -> np.ndarray:
