@@ -376,6 +376,8 @@ def complete_demo(out: str | Path, config: DemoConfig, story: DemoStory,
         log(f"  {name}: {stages[-1].seconds:.1f} s ({stages[-1].cpu_seconds:.1f} s CPU)")
 
     seg = load_run(out)
+    # the object taken away: the ground truth's when generated, else the first the update reported removed
+    known = story.true_removed if story.true_removed >= 0 else (story.removed[0] if story.removed else -1)
     rq = None
     t = time.perf_counter()
     try:
@@ -404,15 +406,13 @@ def complete_demo(out: str | Path, config: DemoConfig, story: DemoStory,
                 + ("" if choice.correct else f" (made for I{choice.intended}: not ranked first)"))
             if not choice.correct:
                 notes.append(f"no phrase tried was ranked on its object; the tour shows '{choice.text}' anyway")
-            known = story.true_removed if story.true_removed >= 0 else (story.removed[0] if story.removed else -1)
             if known >= 0 and choice.target != known:
                 notes.append(f"the suggested query names I{choice.target}, not the removed I{known}: no phrase tried "
                              "was ranked first on the removed object")
     stage("suggested query", t)
 
     t = time.perf_counter()
-    target = choice.target if choice is not None else (story.true_removed if story.true_removed >= 0 else
-                                                      (story.removed[0] if story.removed else -1))
+    target = choice.target if choice is not None else known
     n_grasps = 0
     if target >= 0:
         from clutt3r_core.grasping.request import depth_views, request_from_segmentation
