@@ -57,6 +57,7 @@ from clutt3r_core.evaluation.metrics import (
     VoxelLabels,
     average_precision,
     match_instances,
+    union_cells,
     voxelize_labels,
 )
 from clutt3r_core.scene import GroundTruth
@@ -135,22 +136,6 @@ def error_breakdown(
                                 voxelize_labels(gt.points, gt.point_labels, voxel))
 
 
-def _union(pred: VoxelLabels, gt: VoxelLabels) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Union of both sides' cells: (cells (U, 3), pred label (U,), gt label (U,), in_pred (U,), in_gt (U,))."""
-    both = np.concatenate([pred.cells, gt.cells], axis=0)
-    cells, inv = np.unique(both, axis=0, return_inverse=True)
-    inv = inv.reshape(-1)
-    u = len(cells)
-    lp = np.full(u, -1, np.int64)
-    lg = np.full(u, -1, np.int64)
-    in_pred = np.zeros(u, bool)
-    in_gt = np.zeros(u, bool)
-    ip, ig = inv[: len(pred.cells)], inv[len(pred.cells):]
-    lp[ip], in_pred[ip] = pred.labels, True
-    lg[ig], in_gt[ig] = gt.labels, True
-    return cells.reshape(-1, 3), lp, lg, in_pred, in_gt
-
-
 def _near_other_label(cells: np.ndarray, lg: np.ndarray, in_gt: np.ndarray) -> np.ndarray:
     """(U,) bool: a GT cell of another label (or, for a cell without GT, of two labels) lies in its 26-neighbourhood."""
     u = len(cells)
@@ -190,12 +175,12 @@ def _ap(labels: np.ndarray, cells: np.ndarray, scores: np.ndarray, gt: VoxelLabe
     return float(np.mean([100.0 * average_precision(m.scores, m.tp[i], m.num_gt) for i in range(len(m.thresholds))]))
 
 
-def breakdown_from_cells(pred: VoxelLabels, scores: np.ndarray, gt: VoxelLabels, _debug: dict | None = None) -> ErrorBreakdown:
+def breakdown_from_cells(pred: VoxelLabels, scores: np.ndarray, gt: VoxelLabels) -> ErrorBreakdown:
     """Breakdown from both sides' majority labels on the grid; ``scores`` (K,) confidence of prediction id k."""
     if pred.voxel != gt.voxel:
         raise SceneError(f"breakdown_from_cells: grids differ ({pred.voxel} vs {gt.voxel} m)")
     scores = np.asarray(scores, np.float64).reshape(-1)
-    cells, lp, lg, in_pred, in_gt = _union(pred, gt)
+    cells, lp, lg, in_pred, in_gt = union_cells(pred, gt)
     pid = np.unique(lp[lp >= 0])
     gid = np.unique(lg[lg >= 0])
     npred, ngt = len(pid), len(gid)
@@ -261,8 +246,6 @@ def breakdown_from_cells(pred: VoxelLabels, scores: np.ndarray, gt: VoxelLabels,
     assign(on_obj & (lp >= 0), "merged")
     assign(in_gt & ~on_obj & (lp >= 0), "table")
     counts = tuple(int(np.sum(kind == i)) for i in range(len(ERROR_KINDS)))
-    if _debug is not None:
-        _debug.update(cells=cells, lp=lp, lg=lg, in_pred=in_pred, in_gt=in_gt, target=target, kind=kind, near=near)
 
     # cells outside the prediction carry -1, which the matching ignores: every AP is over all cells
     base = _ap(lp, cells, oracle_scores_a, gt)

@@ -47,6 +47,7 @@ __all__ = [
     "InstanceMatches",
     "APResult",
     "instance_iou",
+    "union_cells",
     "match_instances",
     "average_precision",
     "evaluate_instances",
@@ -116,21 +117,28 @@ def voxelize_labels(points: np.ndarray, labels: np.ndarray, voxel: float = EVAL_
     return VoxelLabels(cells, out, float(voxel))
 
 
-def _joint_cells(pred: VoxelLabels, gt: VoxelLabels) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Labels of both sides on the union of their cells: (pred_label (U,), gt_label (U,), cell order key (U,)).
-    A cell missing on one side has label -1 there."""
-    both = np.concatenate([pred.cells, gt.cells], axis=0)
-    if len(both) == 0:
-        z = np.zeros(0, np.int64)
-        return z, z, z
-    _, inv = np.unique(both, axis=0, return_inverse=True)
+def union_cells(pred: VoxelLabels, gt: VoxelLabels) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Both sides on the sorted union of their cells: (cells (U, 3), pred label (U,), gt label (U,),
+    in_pred (U,) bool, in_gt (U,) bool). A cell missing on one side has label -1 there."""
+    both = np.concatenate([pred.cells, gt.cells], axis=0).reshape(-1, 3)
+    cells, inv = np.unique(both, axis=0, return_inverse=True)
     inv = inv.reshape(-1)
-    u = int(inv.max()) + 1
+    u = len(cells)
     lp = np.full(u, -1, np.int64)
     lg = np.full(u, -1, np.int64)
-    lp[inv[: len(pred.cells)]] = pred.labels
-    lg[inv[len(pred.cells) :]] = gt.labels
-    return lp, lg, np.arange(u)
+    in_pred = np.zeros(u, bool)
+    in_gt = np.zeros(u, bool)
+    ip, ig = inv[: len(pred.cells)], inv[len(pred.cells) :]
+    lp[ip], in_pred[ip] = pred.labels, True
+    lg[ig], in_gt[ig] = gt.labels, True
+    return cells.reshape(-1, 3), lp, lg, in_pred, in_gt
+
+
+def _joint_cells(pred: VoxelLabels, gt: VoxelLabels) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(pred_label (U,), gt_label (U,), cell order key (U,)) on the union of both sides' cells
+    (``union_cells``)."""
+    _, lp, lg, _, _ = union_cells(pred, gt)
+    return lp, lg, np.arange(len(lp))
 
 
 # ------------------------------------------------------------------ instance AP
