@@ -55,7 +55,8 @@ from clutt3r_core.evaluation.metrics import (
     AP_THRESHOLDS,
     EVAL_VOXEL,
     VoxelLabels,
-    average_precision,
+    _ap_from_matches,
+    _summarise,
     match_instances,
     union_cells,
     voxelize_labels,
@@ -170,9 +171,8 @@ def _ap(labels: np.ndarray, cells: np.ndarray, scores: np.ndarray, gt: VoxelLabe
     """AP over IoU 0.50:0.95 (percent) of labels (U,) on cells (U, 3); NaN without GT objects."""
     pv = VoxelLabels(cells, labels, gt.voxel)
     m = match_instances(pv, scores, gt, thresholds=AP_THRESHOLDS)
-    if m.num_gt == 0:
-        return float("nan")
-    return float(np.mean([100.0 * average_precision(m.scores, m.tp[i], m.num_gt) for i in range(len(m.thresholds))]))
+    # the same averaging as the reported AP (metrics._summarise), so an oracle's gain is in the report's units
+    return _summarise(_ap_from_matches(m), m.num_gt, len(m.scores)).ap
 
 
 def breakdown_from_cells(pred: VoxelLabels, scores: np.ndarray, gt: VoxelLabels) -> ErrorBreakdown:
