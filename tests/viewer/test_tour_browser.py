@@ -163,3 +163,44 @@ def test_exported_page_shows_the_instances_without_a_server(browser, tour_app, t
     assert share > 0.01, f"only {share:.4f} of the page in instance colours"
     assert len(hit) >= max(2, len(ids) // 2), f"instances seen: {sorted(hit)} of {ids.tolist()}"
     page.close()
+
+
+def test_a_step_waiting_for_the_background_query_fills_in_when_it_is_ready(browser, tour_app):  # noqa: F811
+    """`clutt3r demo` opens the viewer before the query stages finish: the query step first says it is
+    waiting, then (``attach_story`` with the completed story, as the demo's background thread does)
+    shows the query without the user touching anything."""
+    from dataclasses import replace
+
+    from clutt3r_viewer.panels.tour import TourPanel, attach_story
+    from clutt3r_viewer.tour import STEPS
+
+    app = tour_app
+    full = app.tour_story
+    if full.query is None or not language_available():
+        pytest.skip("the language extra is not installed: the demo has no query to wait for")
+    early = replace(full, query=None, grasp_target=-1, n_grasps=0, complete=False)
+    known = set(app.sessions)
+    attach_story(app, early)
+    page = browser.new_page(viewport={"width": 1000, "height": 700})
+    try:
+        page.goto(app.url)
+        page.wait_for_selector("canvas", timeout=30_000)
+        _wait(lambda: any(k not in known and s.built for k, s in list(app.sessions.items())), what="session build")
+        sess = next(s for k, s in list(app.sessions.items()) if k not in known)
+        tour = sess.panel(TourPanel)
+        _wait(lambda: tour.applied >= 1, timeout=30, what="the tour's first step")
+        k = next(i for i, st in enumerate(STEPS) if st.key == "query")
+        tour.go(sess, k)
+        assert "fills in by itself" in tour.text.content  # says it waits, shows no stale query
+        assert sess.state.query != full.query.text
+        _wait(lambda: page.get_by_text("fills in by itself").count() >= 1, what="the waiting sentence in the page")
+        n = tour.applied
+        attach_story(app, full)  # what the demo's background thread does when the query is ready
+        _wait(lambda: tour.applied > n, timeout=30, what="the step re-applied")
+        assert tour.step == k and "fills in by itself" not in tour.text.content
+        assert sess.state.query == full.query.text and sess.state.query_best == full.query.target
+        assert sess.state.color_mode == "query"
+        _wait(lambda: page.get_by_text("fills in by itself").count() == 0, what="the waiting sentence gone")
+    finally:
+        attach_story(app, full)
+        page.close()
