@@ -22,36 +22,61 @@ def instance_overlay(points: np.ndarray, instance: np.ndarray, view: View, alpha
                      radius: int = 0) -> np.ndarray:
     """(H, W, 3) uint8: the view's RGB with labelled points splatted in instance colours.
 
-    Points are z-buffered (nearest wins) so hidden instances do not paint over visible ones.
+    Each point covers the (2r+1) x (2r+1) pixel square around its projection (r: half a
+    5 mm voxel in pixels at the median depth, at least ``radius``), z-buffered (nearest
+    wins) so hidden instances do not paint over visible ones; a pixel whose nearest point
+    is unlabelled keeps its colour.
+
+    Computed as a z-buffer of the projections (each pixel's nearest point) followed by a
+    separable minimum filter of the points' depth ranks over the square: the same winner
+    as splatting every point at every offset (which took 2 s per 1080p view; issue 13),
+    in a few passes over the image.
     """
     cam = view.camera
-    img = view.rgb.astype(np.float32)
     lab = instance >= 0
     if not lab.any():
         return view.rgb.copy()
     uv, z = cam.project(points)
-    u = np.round(uv[:, 0]).astype(np.int64)
-    v = np.round(uv[:, 1]).astype(np.int64)
     r = max(radius, int(np.ceil(cam.fx * 0.005 / max(np.median(z[z > 0]) if (z > 0).any() else 1.0, 1e-3) / 2)))
     H, W = cam.height, cam.width
-    zbuf = np.full(H * W, np.inf)
-    idbuf = np.full(H * W, -2, np.int64)
-    order = np.argsort(-z)  # far first, near last overwrites
-    for du in range(-r, r + 1):
-        for dv in range(-r, r + 1):
-            uu, vv = u + du, v + dv
-            ok = (z > 0) & (uu >= 0) & (uu < W) & (vv >= 0) & (vv < H)
-            o = order[ok[order]]
-            flat = vv[o] * W + uu[o]
-            closer = z[o] < zbuf[flat]
-            zbuf[flat[closer]] = z[o][closer]
-            idbuf[flat[closer]] = instance[o][closer]
+    # projections that can reach the image: on the canvas padded by r on each side
+    with np.errstate(invalid="ignore"):
+        near = (z > 0) & (uv[:, 0] > -r - 1) & (uv[:, 0] < W + r) & (uv[:, 1] > -r - 1) & (uv[:, 1] < H + r)
+    idx = np.flatnonzero(near)
+    u = np.round(uv[idx, 0]).astype(np.int64) + r
+    v = np.round(uv[idx, 1]).astype(np.int64) + r
+    ok = (u >= 0) & (u < W + 2 * r) & (v >= 0) & (v < H + 2 * r)
+    idx, u, v = idx[ok], u[ok], v[ok]
+    if not len(idx):
+        return view.rgb.copy()
+    # rank 0 = nearest point; the canvas holds each cell's smallest rank (len(idx) = none)
+    nearest_first = np.argsort(z[idx], kind="stable")
+    by_depth = idx[nearest_first]
+    Wp = W + 2 * r
+    cell = (v * Wp + u)[nearest_first]
+    first_cell, first_rank = np.unique(cell, return_index=True)  # each cell's first = nearest point
+    none = len(idx)
+    rank_dtype = np.int32 if none < 2**31 - 1 else np.int64
+    canvas = np.full((H + 2 * r) * Wp, none, rank_dtype)
+    canvas[first_cell] = first_rank
+    canvas = canvas.reshape(H + 2 * r, Wp)
+    # separable minimum over the (2r+1)^2 square: along u, then along v
+    rows = canvas[:, 0:W].copy()
+    for d in range(1, 2 * r + 1):
+        np.minimum(rows, canvas[:, d : d + W], out=rows)
+    win = rows[0:H].copy()
+    for d in range(1, 2 * r + 1):
+        np.minimum(win, rows[d : d + H], out=win)
+    win = win.reshape(-1)
+    pix = np.flatnonzero(win < none)
+    ids = instance[by_depth[win[pix]]]
     # pixels whose nearest point is unlabelled stay as they are
+    pix, ids = pix[ids >= 0], ids[ids >= 0]
     pal = instance_palette(int(instance.max()) + 1).astype(np.float32)
-    hit = idbuf >= 0
-    flat_img = img.reshape(-1, 3)
-    flat_img[hit] = (1 - alpha) * flat_img[hit] + alpha * pal[idbuf[hit]]
-    return np.clip(flat_img.reshape(H, W, 3), 0, 255).astype(np.uint8)
+    out = view.rgb.copy()
+    flat = out.reshape(-1, 3)
+    flat[pix] = np.clip((1 - alpha) * flat[pix].astype(np.float32) + alpha * pal[ids], 0, 255).astype(np.uint8)
+    return out
 
 
 def overview_sheet(points: np.ndarray, instance: np.ndarray, scene: Scene, max_views: int = 4,
