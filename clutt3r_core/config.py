@@ -100,6 +100,9 @@ ADDITIONS: tuple[Addition, ...] = (
              (("occupancy.normalise", "visible", "all"),)),
     Addition("one-mask-per-view", "a group holds at most one mask per view",
              (("grouping.one_mask_per_view", True, False),)),
+    Addition("duplicate-masks", "masks of one view with pixel IoU >= 0.9 are one mask: leaf copies start as one group, "
+             "a leaf copy of a parent is no candidate",
+             (("grouping.duplicate_iou", 0.9, 0.0),)),
     Addition("overlap-gate", "stage 2 only merges groups that share a super-voxel (mean S_spatial > 0)",
              (("grouping.semantic_needs_overlap", True, False),)),
     Addition("coverage-guard", "a super-voxel goes to its winner only if one of its masks covers >= 50 % of it",
@@ -195,10 +198,11 @@ ADDED_AFTER_V1: dict[str, Any] = {
     "vote.revote_dropped": False,
     "refine.min_won_fraction": 0.0,
     "refine.weak_echo_ratio": 0.0,
+    "grouping.duplicate_iou": 0.0,
 }
 """Fields added after trace version 1, each with the value that reproduces the code that wrote
-such a trace (issue 13: the first two only made existing rules switchable; the last two are
-fixes that the old code did not have). Only these may be missing from a stored config."""
+such a trace (issue 13: the first two only made existing rules switchable; the others are
+fixes or rules that the old code did not have). Only these may be missing from a stored config."""
 
 
 _STAGES_ADDED_AFTER_V1 = ("refine",)

@@ -25,6 +25,7 @@ from clutt3r_core.pointcloud import fuse_views
 from clutt3r_core.runs import load_run, save_run  # noqa: F401  (re-exported)
 from clutt3r_core.scene import Scene
 from clutt3r_core.segmentation.evidence import background_masks, check_views
+from clutt3r_core.segmentation.duplicates import duplicate_masks
 from clutt3r_core.segmentation.grouping import (
     NodeTable,
     SimilarityGraph,
@@ -171,7 +172,11 @@ def segment(
                             if config.exclude_background_masks else np.zeros(len(masks), bool))
         occupancy = np.concatenate(occ_parts, axis=0) if occ_parts else np.zeros((0, sv.num), np.float32)
         background = np.concatenate(bg_parts) if bg_parts else np.zeros(0, bool)
-        nodes = NodeTable(nodes.frame, nodes.view, nodes.mask_id, nodes.parent, nodes.is_leaf, background)
+        # ours (issue 13): near-identical masks of one view are one mask (segmentation/duplicates.py)
+        dups = duplicate_masks(nodes.view, nodes.parent, nodes.is_leaf, background, nodes_masks,
+                               config.grouping.duplicate_iou, config.trees.tau_contain)
+        nodes = NodeTable(nodes.frame, nodes.view, nodes.mask_id, nodes.parent, nodes.is_leaf & ~dups.shadow,
+                          background)
     tick("embeddings + leaf graph")
 
     with timer("embeddings"):
@@ -192,7 +197,7 @@ def segment(
     tick("grouping + vote")
 
     with timer("grouping"):
-        grouping = run_grouping(nodes, sim, len(views), config.grouping)
+        grouping = run_grouping(nodes, sim, len(views), config.grouping, duplicates=dups.pairs)
     with timer("vote"):
         def revote(groups):
             return supervoxel_vote(groups, occupancy, sv.counts, sv.support, s_spat, len(views), config.vote)

@@ -3,6 +3,16 @@
 Leaf-pair agreement: over the leaves both sides list (same frame and mask id), every
 unordered pair is "same instance" or not on each side; precision, recall and F1 of
 our "same" pairs against the reference's. Leaves with instance -1 are never "same".
+
+``background_as_instance`` (a second reading, reported next to the strict one, never
+instead of it): the original method has no notion of background and groups the table
+or tray masks like any object (sample_seq4: one instance of 7 table masks, 21 of the 56
+leaf pairs we disagree on), while we flag them background (``clutt3r.background_masks``
+in our file) and write them with instance -1. With the option, the leaves our file lists
+as background count as one shared instance ("the support"), so two table masks count as
+"same" on our side too; where the reference splits them (floor and wall as two
+instances) that costs precision, as any merge would. The strict reading stays the
+number the benchmarks report.
 """
 
 from __future__ import annotations
@@ -15,7 +25,7 @@ import numpy as np
 
 from clutt3r_core.errors import SceneFileError
 
-__all__ = ["LeafPairAgreement", "leaf_pair_agreement", "read_leaf2inst"]
+__all__ = ["LeafPairAgreement", "leaf_pair_agreement", "read_leaf2inst", "background_leaves"]
 
 
 @dataclass(frozen=True)
@@ -38,22 +48,47 @@ class LeafPairAgreement:
 
 def read_leaf2inst(tree: dict | str | Path) -> dict[tuple[int, int], int]:
     """(frame, mask) -> instance from an instance_tree.json (path or parsed dict)."""
-    if not isinstance(tree, dict):
-        path = Path(tree)
-        try:
-            tree = json.loads(path.read_text())
-        except FileNotFoundError:
-            raise SceneFileError(path, "file not found") from None
-        except json.JSONDecodeError as e:
-            raise SceneFileError(path, f"not valid JSON ({e.msg})") from None
+    tree = _read_tree(tree)
     try:
         return {(int(e["frame"]), int(e["mask"])): int(e["instance"]) for e in tree["initial"]["leaf2inst"]}
     except (KeyError, TypeError) as e:
         raise SceneFileError(Path("instance_tree.json"), f"no initial.leaf2inst list ({e})") from None
 
 
-def leaf_pair_agreement(ours: dict | str | Path, reference: dict | str | Path) -> LeafPairAgreement:
+def _read_tree(tree: dict | str | Path) -> dict:
+    if isinstance(tree, dict):
+        return tree
+    path = Path(tree)
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        raise SceneFileError(path, "file not found") from None
+    except json.JSONDecodeError as e:
+        raise SceneFileError(path, f"not valid JSON ({e.msg})") from None
+
+
+def background_leaves(tree: dict | str | Path) -> set[tuple[int, int]]:
+    """(frame, mask) of the masks our instance_tree.json lists under ``clutt3r.background_masks``
+    (empty for a file without that key, e.g. the original release's)."""
+    extra = _read_tree(tree).get("clutt3r") or {}
+    try:
+        return {(int(e["frame"]), int(e["mask"])) for e in extra.get("background_masks", [])}
+    except (KeyError, TypeError) as e:
+        raise SceneFileError(Path("instance_tree.json"), f"clutt3r.background_masks: bad entry ({e})") from None
+
+
+def leaf_pair_agreement(ours: dict | str | Path, reference: dict | str | Path,
+                        background_as_instance: bool = False) -> LeafPairAgreement:
+    """Leaf-pair agreement of ``ours`` with ``reference`` (module docstring).
+
+    ``background_as_instance``: our leaves listed as background count as one shared instance
+    (the second reading of the module docstring); False is the strict reading."""
+    ours = _read_tree(ours)
     a, b = read_leaf2inst(ours), read_leaf2inst(reference)
+    if background_as_instance:
+        bg = background_leaves(ours) & set(a)
+        support = max(list(a.values()) + [-1]) + 1
+        a = {k: (support if k in bg else v) for k, v in a.items()}
     common = sorted(set(a) & set(b))
     ia = np.array([a[k] for k in common])
     ib = np.array([b[k] for k in common])

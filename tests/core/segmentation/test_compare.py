@@ -33,3 +33,20 @@ def test_unassigned_leaves_are_never_same():
     b = tree([(0, 1, 0), (1, 1, 0)])
     r = leaf_pair_agreement(a, b)
     assert r.n_pairs_ours == 0 and r.recall == 0.0 and r.f1 == 0.0
+
+
+def test_background_as_instance_is_a_second_reading_that_keeps_the_strict_one():
+    ours = tree([(0, 1, 0), (1, 1, 0), (0, 2, -1), (1, 2, -1), (0, 3, -1)])
+    ours["clutt3r"] = {"background_masks": [{"frame": 0, "mask": 2}, {"frame": 1, "mask": 2}]}
+    ref = tree([(0, 1, 0), (1, 1, 0), (0, 2, 5), (1, 2, 5), (0, 3, 6)])
+    strict = leaf_pair_agreement(ours, ref)
+    assert strict.n_pairs_ours == 1 and strict.n_pairs_reference == 2 and strict.recall == 0.5
+    support = leaf_pair_agreement(ours, ref, background_as_instance=True)
+    # the two table masks count as "same" on our side; the unassigned (0, 3) still pairs with nothing
+    assert support.n_pairs_ours == 2 and support.n_pairs_both == 2 and support.f1 == 1.0
+    # a reference that splits the support (floor and wall) costs precision, as any merge would
+    ref_split = tree([(0, 1, 0), (1, 1, 0), (0, 2, 5), (1, 2, 7), (0, 3, 6)])
+    r = leaf_pair_agreement(ours, ref_split, background_as_instance=True)
+    assert r.precision == 0.5 and r.recall == 1.0
+    # without our extra key (e.g. the original's file on our side) nothing changes
+    assert leaf_pair_agreement(ref, ref, background_as_instance=True).f1 == 1.0
