@@ -150,6 +150,12 @@ class FusedCloud:
             from ``pixel_voxel`` when not given.
         camera_centres: (V, 3) float64 world position of each fused view's camera, metres,
             or None when unknown (ours: lets later stages orient things towards the cameras).
+        neighbours: (N, k) int32, row n = the k voxels nearest to voxel n by Euclidean
+            distance, nearest first (itself included, normally first), as scipy's cKDTree
+            ``query(points, k)`` gives them; the neighbourhoods of the normals (k =
+            ``normal_knn``, or N when smaller), kept so that the super-voxel graph does not
+            query them again (ours, issue 13: a second k-NN query was a quarter of the
+            super-voxel stage). None when not computed.
     """
 
     points: np.ndarray
@@ -162,6 +168,7 @@ class FusedCloud:
     stride: tuple[int, ...] = ()
     visibility: np.ndarray | None = field(default=None, repr=False)
     camera_centres: np.ndarray | None = field(default=None, repr=False)
+    neighbours: np.ndarray | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         pts = np.asarray(self.points, dtype=np.float32)
@@ -212,6 +219,13 @@ class FusedCloud:
             if cc.shape != (len(pv), 3):
                 raise SceneError(f"FusedCloud.camera_centres must be ({len(pv)}, 3), got {cc.shape}")
             object.__setattr__(self, "camera_centres", _readonly(cc))
+        if self.neighbours is not None:
+            nb = np.asarray(self.neighbours)
+            if nb.ndim != 2 or nb.shape[0] != n or nb.dtype.kind not in "iu":
+                raise SceneError(f"FusedCloud.neighbours must be ({n}, k) integers, got {nb.dtype} {nb.shape}")
+            if nb.size and (nb.min() < 0 or nb.max() >= n):
+                raise SceneError(f"FusedCloud.neighbours has indices outside 0..{n - 1}")
+            object.__setattr__(self, "neighbours", _readonly(nb.astype(np.int32, copy=False)))
         object.__setattr__(self, "points", _readonly(pts))
         object.__setattr__(self, "colors", _readonly(cols))
         object.__setattr__(self, "normals", _readonly(nrm))
@@ -245,9 +259,11 @@ class FusedCloud:
 _NORMAL_BLOCK = 1 << 14
 
 
-def _estimate_normals(points: np.ndarray, knn: int) -> np.ndarray:
+def _estimate_normals(points: np.ndarray, knn: int, *, neighbours: bool = False):
     """(N, 3) float64 unit PCA normals, unoriented: the eigenvector of the smallest
     eigenvalue of the covariance of each point's ``knn`` nearest points (itself included).
+    With ``neighbours=True``, returns (normals, (N, min(knn, N)) int32 neighbour indices
+    as cKDTree gives them, nearest first; None for fewer than 3 points).
 
     The same estimate as Open3D's ``PointCloud.estimate_normals(KDTreeSearchParamKNN(knn))``,
     which this replaced (issue 13): ``import open3d`` costs about 0.9 s per process
@@ -258,10 +274,9 @@ def _estimate_normals(points: np.ndarray, knn: int) -> np.ndarray:
     eigenvector is the closed form for a symmetric 3x3 matrix (``_smallest_eigvec``).
     """
     n = points.shape[0]
-    if n == 0:
-        return np.zeros((0, 3))
     if n < 3:
-        return np.tile([0.0, 0.0, 1.0], (n, 1))
+        nrm = np.tile([0.0, 0.0, 1.0], (n, 1))
+        return (nrm, None) if neighbours else nrm
     from scipy.spatial import cKDTree
 
     pts = np.ascontiguousarray(points, dtype=np.float64)
@@ -269,10 +284,13 @@ def _estimate_normals(points: np.ndarray, knn: int) -> np.ndarray:
     tree = cKDTree(pts)
     cols = [np.ascontiguousarray(pts[:, a]) for a in range(3)]
     nrm = np.empty((n, 3))
+    table = np.empty((n, k), np.int32) if neighbours else None
     for s in range(0, n, _NORMAL_BLOCK):
         q = pts[s : s + _NORMAL_BLOCK]
         _, idx = tree.query(q, k=k, workers=-1)
         idx = idx.reshape(len(q), k)
+        if table is not None:
+            table[s : s + len(q)] = idx
         # offsets from the query point: the covariance is translation-free, and centring
         # on a nearby point keeps the sums small (no cancellation at metres from the origin)
         d = [c[idx] - q[:, a, None] for a, c in enumerate(cols)]
@@ -283,7 +301,7 @@ def _estimate_normals(points: np.ndarray, knn: int) -> np.ndarray:
         nrm[s : s + len(q)] = _smallest_eigvec(cov)
     bad = ~np.isfinite(nrm).all(axis=1) | (np.linalg.norm(nrm, axis=1) < 0.5)
     nrm[bad] = (0.0, 0.0, 1.0)  # degenerate neighbourhoods (coincident voxels); oriented later
-    return nrm
+    return (nrm, table) if neighbours else nrm
 
 
 def _smallest_eigvec(c6: np.ndarray) -> np.ndarray:
@@ -467,7 +485,7 @@ def fuse_views(views: Sequence[View], cfg: PointCloudConfig = PointCloudConfig()
     del vox
     vis = vis[:, :n]
 
-    normals = _estimate_normals(mean, cfg.normal_knn)
+    normals, neighbours = _estimate_normals(mean, cfg.normal_knn, neighbours=True)
     centres = np.stack([v.camera.T_world_camera[:3, 3] for v in views])
     if n:
         # Orient each normal towards the mean centre of the cameras that observed the voxel.
@@ -487,4 +505,5 @@ def fuse_views(views: Sequence[View], cfg: PointCloudConfig = PointCloudConfig()
         stride=tuple(strides),
         visibility=vis,
         camera_centres=centres,
+        neighbours=neighbours,
     )

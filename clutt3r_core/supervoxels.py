@@ -255,19 +255,69 @@ def fit_plane_ransac(
     return plane, inliers(pts, nr, plane)
 
 
-def _knn_edges(points: np.ndarray, k: int, max_dist: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Directed k-NN pairs (i, j int32, ||x_i - x_j|| float64) with distance <= max_dist, self excluded."""
+def _knn_edges(
+    points: np.ndarray, k: int, max_dist: float, neighbours: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Directed k-NN pairs (i, j int32, ||x_i - x_j|| float64) with distance < max_dist, self
+    excluded: the pairs of cKDTree's ``query(points, k + 1, distance_upper_bound=max_dist)``.
+
+    ``neighbours``: the cloud's (N, k') nearest-first neighbour table (``FusedCloud.neighbours``,
+    from the normals; issue 13: this second k-NN query was a quarter of the stage). Its
+    distances are computed the way cKDTree computes them, ((dx^2 + dy^2) + dz^2) in float64
+    against the squared bound, then the square root: the same bits. A row's first k + 1
+    entries are the query's neighbours when they are strictly nearer than the rest of the
+    row and than any point outside it. The table was ranked on the float64 voxel means, not
+    on these float32 points, so both comparisons allow for that rounding (``_ROUNDING_MARGIN``)
+    and need only the (k+2)-th and the last entry of the row. Other rows (ties at the cut:
+    voxel means on a millimetre depth grid, about 40 of 150 k voxels of sample_seq4) are
+    queried as before. The pairs are then those of the query, up to their order within a
+    row (tests/core/test_supervoxels.py).
+    """
     from scipy.spatial import cKDTree
 
     n = points.shape[0]
     kq = min(k + 1, n)
-    dist, idx = cKDTree(points).query(points, k=kq, distance_upper_bound=max_dist, workers=-1)
+    pts = np.asarray(points, np.float64)
+    kt = 0 if neighbours is None or neighbours.shape[0] != n else neighbours.shape[1]
+    if n and (kt > kq or kt == n >= kq):  # a row longer than the query's, or all the points
+        # the k + 1 candidates, then (when the row has more) the next one and the farthest one
+        cols = list(range(kq)) + ([kq, kt - 1] if kt > kq else [])
+        idx = neighbours[:, cols]
+        d2 = np.zeros(idx.shape)
+        for a in range(3):  # column by column: the same sum order as cKDTree's distance
+            diff = pts[idx, a] - pts[:, a, None]
+            diff *= diff
+            d2 += diff
+        d = np.sqrt(d2)
+        bound = max_dist * max_dist
+        if kt == n:  # every point is in the row: nothing outside it
+            exact = np.ones(n, bool)
+        else:
+            margin = _ROUNDING_MARGIN * float(np.spacing(np.float32(np.abs(pts).max())))
+            inner = d[:, :kq].max(axis=1)
+            # the rest of the row is at least the next entry's distance, and every point
+            # outside the row at least the last entry's, each less the rounding margin
+            rest = np.minimum(d[:, kq], d[:, kq + 1]) - margin
+            exact = (inner < rest) | (rest >= max_dist)  # or the rest is beyond the bound anyway
+        idx, dist = idx[:, :kq].astype(np.int64), d[:, :kq]
+        idx[d2[:, :kq] >= bound] = n  # beyond the bound: "no neighbour", as the query reports it
+        redo = np.flatnonzero(~exact)
+        if len(redo):
+            dist[redo], idx[redo] = cKDTree(pts).query(pts[redo], k=kq, distance_upper_bound=max_dist)
+    else:
+        dist, idx = cKDTree(pts).query(pts, k=kq, distance_upper_bound=max_dist, workers=-1)
     # int32 pairs (issue 13, 1080p memory): the edge arrays are the stage's largest
     src = np.repeat(np.arange(n, dtype=np.int32), kq)
     dst = idx.reshape(-1)
     ok = (dst < n) & (dst != src)
     del idx
     return src[ok], dst[ok].astype(np.int32), dist.reshape(-1)[ok]
+
+
+# A float32 coordinate is within half a spacing of the float64 mean it was rounded from, so a
+# distance moves by at most sqrt(3) spacings between the two; a comparison of two distances
+# by twice that; twice again for safety.
+_ROUNDING_MARGIN = 4.0 * 3.0**0.5
 
 
 def _components(n: int, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
@@ -386,7 +436,7 @@ def build_supervoxels(cloud: FusedCloud, cfg: SuperVoxelConfig = SuperVoxelConfi
     max_dist = cfg.tau_merge / cfg.alpha if cfg.alpha > 0 else np.inf
     # The support rule also uses the graph (floor patch, two voxels): query far enough.
     q_dist = max(max_dist, 2.0 * cloud.voxel_size) if cfg.support_removal else max_dist
-    src, dst, dist = _knn_edges(pts, cfg.knn, q_dist)
+    src, dst, dist = _knn_edges(pts, cfg.knn, q_dist, cloud.neighbours)
     dot = np.einsum("ij,ij->i", cloud.normals[src], cloud.normals[dst]).astype(np.float64)
     if cfg.absolute_normal_dot:
         dot = np.abs(dot)

@@ -2,10 +2,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from clutt3r_core.errors import SceneError
 from clutt3r_core.pointcloud import FusedCloud, fuse_views
-from clutt3r_core.supervoxels import SuperVoxelConfig, SuperVoxels, build_supervoxels, fit_plane_ransac
+from clutt3r_core.supervoxels import SuperVoxelConfig, SuperVoxels, _knn_edges, build_supervoxels, fit_plane_ransac
 from tests.core._geometry_scenes import BOX_MAX, make_views
 
 
@@ -120,3 +122,58 @@ def test_real_samples_supervoxels(which, request):
     frac = sv.voxel_support().mean()
     assert 0.5 < frac < 0.97
     assert (~sv.support & (sv.sizes >= 50)).sum() >= 5
+
+
+def _edge_set(edges) -> set:
+    src, dst, dist = edges
+    return set(zip(src.tolist(), dst.tolist(), dist.tolist()))
+
+
+def _table(means64: np.ndarray, k: int) -> np.ndarray:
+    from scipy.spatial import cKDTree
+
+    return cKDTree(means64).query(means64, k=k)[1].reshape(len(means64), k).astype(np.int32)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(2, 400), k=st.integers(1, 12),
+       table_k=st.integers(1, 25), grid=st.booleans())
+def test_knn_edges_from_the_neighbour_table_equal_the_query(seed, n, k, table_k, grid):
+    """Issue 13: the super-voxel graph reuses the normals' k-NN table; its pairs and their
+    lengths must be the bounded query's, also with exact distance ties at the cut (points on a
+    grid) and with the table ranked on float64 means but the edges measured on float32 points."""
+    rng = np.random.default_rng(seed)
+    if grid:  # voxel means on a millimetre grid: many exactly equal distances
+        means = rng.integers(0, 12, (n, 3)) * 0.004 + np.array([0.31, -0.2, 0.7])
+    else:
+        means = rng.random((n, 3)) * 0.08 + np.array([0.31, -0.2, 0.7]) + rng.normal(scale=1e-9, size=(n, 3))
+    pts = means.astype(np.float32).astype(np.float64)  # what FusedCloud.points holds
+    table = _table(means, min(table_k, n))
+    for bound in (0.02, 0.008, np.inf):
+        want = _edge_set(_knn_edges(pts, k, bound))
+        got = _knn_edges(pts, k, bound, table)
+        assert got[0].dtype == got[1].dtype == np.int32
+        assert _edge_set(got) == want
+
+
+def test_knn_edges_bound_is_strict_with_the_table():
+    """A neighbour at exactly the bound is not an edge, as in cKDTree's bounded query."""
+    pts = np.array([[0.0, 0.0, 0.0], [0.02, 0.0, 0.0], [0.0, 0.01, 0.0], [0.5, 0.5, 0.5]])
+    table = _table(pts, 4)
+    want = _edge_set(_knn_edges(pts, 3, 0.02))
+    assert _edge_set(_knn_edges(pts, 3, 0.02, table)) == want
+    assert (0, 1, 0.02) not in want and (0, 2, 0.01) in want
+
+
+def test_fused_cloud_carries_the_normals_neighbours_and_supervoxels_are_unchanged(table_box):
+    cloud, sv = table_box
+    assert cloud.neighbours is not None and cloud.neighbours.shape == (cloud.num, 20)
+    assert (cloud.neighbours[:, 0] == np.arange(cloud.num)).all()  # itself first
+    bare = FusedCloud(cloud.points, cloud.colors, cloud.normals, cloud.counts, cloud.voxel_size, cloud.frames,
+                      cloud.pixel_voxel, cloud.stride, camera_centres=cloud.camera_centres)
+    again = build_supervoxels(bare)  # no table: its own query
+    np.testing.assert_array_equal(again.labels, sv.labels)
+    np.testing.assert_array_equal(again.support, sv.support)
+    with pytest.raises(SceneError, match="neighbours"):
+        FusedCloud(cloud.points, cloud.colors, cloud.normals, cloud.counts, cloud.voxel_size, cloud.frames,
+                   cloud.pixel_voxel, neighbours=np.full((cloud.num, 3), cloud.num))
