@@ -126,8 +126,9 @@ def replay_event(data: ViewerData) -> int:
     """The grouping step the tour stops at: the first merge of the semantic stage when there is one
     (the step where appearance joins what geometry could not), else the middle step."""
     g = data.trace.grouping
+    first = next((m.stage for m in g.merges if m.stage != "duplicate"), "")  # copies are joined before stage 1
     for n, (kind, idx) in enumerate(g.events, 1):
-        if kind == "merge" and g.merges[idx].stage != g.merges[0].stage:
+        if kind == "merge" and g.merges[idx].stage not in (first, "duplicate"):
             return n
     return max(1, len(g.events) // 2)
 
