@@ -152,10 +152,12 @@ class AssociationConfig:
     ``removed``. Measured on seeds 200-201: fragments have 1-30 points, the smallest object
     instance 176 (a removed one)."""
     exclude_present: bool = True
-    """Ours, with new depth only: an instance whose old place still shows it (rule 5's depth
-    presence test) has not moved, so it does not take part in the semantic stage (its own mask
-    is missing or merged; an appearance match would take another object's mask: measured on
-    seed 200, a static box took the pushed object's mask)."""
+    """Ours: an instance whose old place still shows it (with new depth: rule 5's depth
+    presence test; without: the photometric in-place test, ``ChangeConfig.use_photo``) has not
+    moved, so it does not take part in the semantic stage (its own mask is missing or merged;
+    an appearance match would take another object's mask: measured on seed 200, a static box
+    took the pushed object's mask; on seed 101 without depth, a static instance took another
+    object's mask at IoU 0.00 and was "displaced")."""
     hidden_fraction: float = 0.3
     """Ours: an unmatched instance whose z-buffered projection keeps less than this fraction of
     its own unoccluded projection (or that projects outside the image) is ``occluded``."""
@@ -243,6 +245,53 @@ class ChangeConfig:
     max_extent_ratio: float = 1.3
     """Ours: a mask whose depth points span more than this x the instance's diameter (+1 cm)
     cannot be that instance; not registered (saves time)."""
+    use_photo: bool = True
+    """Ours, views without depth (or ``use_depth`` False; ``update/photo_change.py``): every
+    stored point the new camera sees predicts its pixel's colour; an instance whose informative
+    visible points (colour unlike the table around it) agree with the new image at
+    ``photo_in_place_fraction`` or more is static whatever its projected IoU and whether or not
+    a mask covers it; at ``photo_gone_fraction`` or less its old place shows something else
+    (rule 5: removed when unmatched). Measured on seeds 100-103 without depth: 17 static
+    objects flagged, 8 of them static objects whose mask the detector dropped, reported
+    removed, and 5 matched ones with IoU 0.52-0.74 "improved" by the silhouette fit; static
+    instances agree at 0.78-1.00 (5th percentile up), moved and removed ones at 0.00-0.29
+    except two removed objects coloured like the table around them (0.38, 0.65). False = the
+    IoU test and rule 5's colour-and-mask test (the paper's rule and the previous one)."""
+    photo_tol_min: float = 15.0
+    """Ours, 0-255 mean absolute RGB difference: the smallest colour tolerance of a point
+    (renderings: static objects' points differ by 0-6 at the median, a removed wooden box
+    from the wooden table under it by 15, seed 102)."""
+    photo_tol_sigma: float = 5.0
+    """Ours: the tolerance is at least this x the robust noise of the background pixels'
+    residuals (1.4826 x median of their best match within ``photo_search_px``): renderings
+    measure 1-3 (so ``photo_tol_min`` holds), sample_seq1 5.3-5.5, so 27 there, where its
+    static bottle and can agree at 0.81-0.83 (0.61-0.72 at 3 sigma) and moved objects at
+    <= 0.22 (measured on sample_seq1: the only real frames without depth we have)."""
+    photo_search_px: int = 1
+    """Ours, pixels: a point agrees when any pixel within this of its centre pixel does (one
+    pixel of calibration or reconstruction error moves texture edges; on sample_seq1 the
+    static cup and bottle agree at 0.47 / 0.61 without, 0.64 / 0.75 with; moved objects at
+    0.00-0.28 either way)."""
+    photo_context_radius: float = 0.03
+    """Ours, metres: background points within this of the instance give the colour the camera
+    would see there without it; points whose stored colour is within the tolerance of it are
+    not informative (a dark clamp on a dark table agrees wherever it is)."""
+    photo_context_share: float = 0.1
+    """Ours: a pixel whose predicted colour resembles this share of the background colours
+    around the instance or more is not informative (a striped table has two colours at ~0.5
+    each; a few object points left unlabelled in the background stay under 0.1)."""
+    photo_min_points: int = 20
+    """Ours: an instance is judged with at least this many informative visible points."""
+    photo_min_informative: float = 0.25
+    """Ours: ... and at least this fraction of its visible points informative (sample_seq1's
+    black clamp: 0.21)."""
+    photo_in_place_fraction: float = 0.7
+    """Ours: informative points agreeing at or above this = in place (static); see ``use_photo``."""
+    photo_gone_fraction: float = 0.35
+    """Ours: at or below this = its old place shows something else; see ``use_photo``. An
+    unmatched instance above it (and not hidden) is static: seeds 100-103, static instances
+    whose mask was dropped agree at 0.50-0.63 when partly covered or specular, moved and
+    removed ones at <= 0.29."""
     splat_scale: float = 1.0
     """Ours: a point is splatted as a square of half-size ``splat_scale * voxel * f / z / 2``
     pixels, voxel = the cloud's voxel size (5 mm, Sec. IV), so neighbouring points close the
@@ -387,8 +436,9 @@ class InstanceUpdate:
         T_world: (4, 4) world-frame motion for displaced, None otherwise.
         mask_id: id of the associated mask candidate of the new view, or -1.
         match: how it was matched (associate.py): "spatial", "semantic", "parent-spatial",
-            "parent-semantic", "parent-upgrade"; for unmatched instances "" or
-            "present-depth" / "present-colour" (static without a mask of its own);
+            "parent-semantic", "parent-upgrade" (+ "+photo" when the photometric in-place
+            test kept it static below tau_IoU); for unmatched instances "" or
+            "present-depth" / "present-colour" / "present-photo" (static without a mask of its own);
             "semantic-rejected" when an appearance match failed the fit check.
         pose: the optimisation record (displaced, or flagged and then judged static /
             unmatched by the verification), else None.

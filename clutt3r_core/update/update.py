@@ -17,6 +17,12 @@ empty (and hidden IoU-flagged ones) are registered against the mask candidates: 
 the registration's pose when a fit passes, else removed (hidden ones: occluded). The paper's
 silhouette/photometric fit then runs only for views without depth (or, optionally, after the
 registration: ``PoseConfig.refine_registration``).
+
+Without depth (ours, ``ChangeConfig.use_photo``, photo_change.py): the stored points' colours
+are compared with the new image first; instances found in place are static whatever their
+projected IoU (and stay out of the semantic stage of the association), unmatched ones found
+in place are static and unmatched ones found gone are removed (associate.py rule 5); the
+others keep the paper's IoU test and silhouette/photometric fit.
 """
 
 from __future__ import annotations
@@ -31,6 +37,7 @@ from clutt3r_core.scene import MaskCandidates, View
 from clutt3r_core.segmentation.trees import build_instance_tree
 from clutt3r_core.update.associate import Association, Projection, associate, project_instances, unmatched_status
 from clutt3r_core.update.depth_change import depth_changes, fit_iou, registration_result
+from clutt3r_core.update.photo_change import PhotoCheck, photo_check
 from clutt3r_core.update.project import mask_iou
 from clutt3r_core.update.state import SceneState
 from clutt3r_core.update.types import TAU_SEM_BY_EMBEDDER, InstanceUpdate, NewMask, PoseProblem, UpdateConfig, UpdateResult
@@ -46,6 +53,10 @@ class UpdateDetails:
     projection: Projection
     depth: object = None
     """``depth_change.DepthChanges`` when the view had depth and ``ChangeConfig.use_depth``."""
+    photo: PhotoCheck | None = None
+    """The photometric in-place test when it ran (no depth cues, ``ChangeConfig.use_photo``)."""
+    photo_verdict: dict | None = None
+    """instance id -> "in-place" / "present" (between) / "gone", for the judged instances."""
 
 
 def _moved(res, centroid: np.ndarray, iou_before: float, config: UpdateConfig) -> bool:
@@ -100,7 +111,21 @@ def update_scene(
         return embedder.embed_masks(view.rgb, masks.masks[idx])
 
     proj_all = project_instances(state.points, state.instance, ids, cam, voxel, scale, colors=state.colors)
-    assoc = associate(view, proj_all, state.embeddings, mask_emb, config.association, tree=tree)
+    cc = config.change
+    photo: dict[int, str] = {}
+    if cc.use_photo and not (cc.use_depth and view.depth is not None):
+        pc = photo_check(state.points, state.colors, state.instance, ids, cam, view.rgb, voxel,
+                         tol_min=cc.photo_tol_min, tol_sigma=cc.photo_tol_sigma, search_px=cc.photo_search_px,
+                         context_radius=cc.photo_context_radius, context_share=cc.photo_context_share)
+        for k in ids:
+            k = int(k)
+            if pc.judged(k, cc.photo_min_points, cc.photo_min_informative):
+                f = pc.fraction(k)
+                photo[k] = ("in-place" if f >= cc.photo_in_place_fraction
+                            else "gone" if f <= cc.photo_gone_fraction else "present")
+        if details is not None:
+            details.photo, details.photo_verdict = pc, photo
+    assoc = associate(view, proj_all, state.embeddings, mask_emb, config.association, tree=tree, photo=photo)
     if details is not None:
         details.association, details.projection = assoc, proj_all
 
@@ -125,7 +150,8 @@ def update_scene(
             v2 = _iou_without(pk.label == k, new_mask[k], ignore)
             if v2 >= config.change.tau_iou:
                 iou[k] = v2
-    displaced = sorted(k for k, v in iou.items() if v < config.change.tau_iou)
+    # photometrically in place: static whatever the IoU (ours, photo_change.py)
+    displaced = sorted(k for k, v in iou.items() if v < config.change.tau_iou and photo.get(k) != "in-place")
 
     # with depth (ours, depth_change.py): in place -> static; seen gone -> registered or removed
     dc = None
@@ -186,7 +212,8 @@ def update_scene(
         if k in status:  # unmatched: removed, occluded, or present without a mask of its own (static)
             records.append(InstanceUpdate(k, status[k], None, None, None, mid, assoc.match[i]))
         elif k not in displaced:
-            records.append(InstanceUpdate(k, "static", iou[k], iou[k], None, mid, assoc.match[i]))
+            how = assoc.match[i] + ("+photo" if photo.get(k) == "in-place" and iou[k] < cc.tau_iou else "")
+            records.append(InstanceUpdate(k, "static", iou[k], iou[k], None, mid, how))
         else:
             sel = state.instance == k
             pb = PoseProblem(
@@ -196,7 +223,7 @@ def update_scene(
             res = optimizer.optimize(pb)
             if config.change.verify and "semantic" in assoc.match[i] and res.iou_after < config.change.min_fit_iou:
                 # an appearance match that no rigid motion fits is not this object: unmatched
-                st_k, how_k = unmatched_status(view, proj_all, i, config.association)
+                st_k, how_k = unmatched_status(view, proj_all, i, config.association, photo.get(k, ""))
                 records.append(InstanceUpdate(k, st_k, None, None, None, -1, how_k or "semantic-rejected", pose=res))
             elif config.change.verify and not _moved(res, state.points[sel].mean(axis=0), iou[k], config):
                 records.append(InstanceUpdate(k, "static", iou[k], iou[k], None, mid, assoc.match[i], pose=res))

@@ -88,3 +88,21 @@ def render_view(points, colors, inst, cam: Camera, frame=9, with_depth=True, bac
                            np.array([k + 1 for k in present], np.int32))
     depth = np.where(hit, z, np.nan).astype(np.float32) if with_depth else None
     return View(frame=frame, rgb=rgb, camera=cam, depth=depth, masks=masks)
+
+
+def table_points(x=(-0.2, 0.2), y=(-0.12, 0.2)) -> tuple[np.ndarray, np.ndarray]:
+    """A textured table top at z = 0 (5 mm grid, grey stripes 1.5 cm wide): the background
+    (instance -1) that a real run's cloud holds around the objects."""
+    X, Y = np.meshgrid(np.arange(x[0], x[1], VOXEL), np.arange(y[0], y[1], VOXEL), indexing="ij")
+    pts = np.stack([X.ravel(), Y.ravel(), np.zeros(X.size)], axis=1).astype(np.float32)
+    stripe = (np.floor(X.ravel() / 0.015).astype(np.int64) % 2).astype(np.uint8)
+    cols = np.stack([100 + 30 * stripe, 98 + 30 * stripe, 92 + 28 * stripe], axis=1).astype(np.uint8)
+    return pts, cols
+
+
+def two_boxes_on_a_table():
+    """``two_box_scene`` plus ``table_points`` as background (instance -1)."""
+    pts, cols, inst = two_box_scene()
+    tp, tc = table_points()
+    return (np.concatenate([pts, tp]), np.concatenate([cols, tc]),
+            np.concatenate([inst, np.full(len(tp), -1, np.int32)]))
