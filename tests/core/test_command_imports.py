@@ -69,3 +69,29 @@ def test_the_command_table_still_answers_without_a_command(capsys):
         out = capsys.readouterr()
         text = out.out + out.err
         assert "segment" in text and "synth" in text, text[-500:]
+
+
+def _blas_threads_after(env_extra: dict[str, str]) -> int:
+    """numpy's BLAS thread count after a fresh ``clutt3r segment --help`` process."""
+    import os
+
+    prog = (
+        "import atexit, sys\n"
+        "from threadpoolctl import threadpool_info\n"
+        "atexit.register(lambda: sys.__stdout__.write('BLAS=%d\\n' % max(i['num_threads'] for i in threadpool_info()"
+        " if i['user_api'] == 'blas')))\n"
+        "from clutt3r_core.cli import main\n"
+        "main(['segment', '--help'])\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
+    r = subprocess.run([sys.executable, "-c", prog], capture_output=True, text=True, timeout=300, env={**env, **env_extra})
+    line = [x for x in r.stdout.splitlines() if x.startswith("BLAS=")]
+    assert line, (r.returncode, r.stdout[-2000:], r.stderr[-2000:])
+    return int(line[-1][5:])
+
+
+def test_the_cli_runs_blas_on_one_thread_unless_the_user_chose():
+    """Issue 13: OpenBLAS's worker threads only spin on the pipeline's small products (1 s of CPU
+    of 4 on a hard scene); a thread count the user set in the environment is kept."""
+    assert _blas_threads_after({}) == 1
+    assert _blas_threads_after({"OPENBLAS_NUM_THREADS": "2"}) == 2
