@@ -283,14 +283,20 @@ def main() -> None:
                     help="PoseConfig.registration_photo_weight (colour tie-break of the depth registration)")
     ap.add_argument("--tie-margin", type=float, default=PoseConfig().registration_tie_margin,
                     help="PoseConfig.registration_tie_margin")
+    ap.add_argument("--yaw-starts", default=None,
+                    help="PoseConfig.yaw_starts_deg as comma-separated degrees (default: the config's)")
+    ap.add_argument("--no-photo", action="store_true",
+                    help="ChangeConfig.use_photo=False: without depth, the IoU test and rule 5's colour-and-mask test")
     ap.add_argument("--tag", default="", help="suffix of results_<tag>.json")
     a = ap.parse_args()
     cfg = UpdateConfig(change=ChangeConfig(verify=not a.no_verify, min_fit_iou=a.min_fit_iou,
-                                           use_depth=not a.no_depth_cues),
+                                           use_depth=not a.no_depth_cues, use_photo=not a.no_photo),
                        pose=replace(PoseConfig(), dof=a.dof, early_exit=not a.no_early_exit,
                                     refine_registration=a.refine_registration,
                                     registration_photo_weight=a.photo_weight,
-                                    registration_tie_margin=a.tie_margin))
+                                    registration_tie_margin=a.tie_margin,
+                                    **({"yaw_starts_deg": tuple(float(x) for x in a.yaw_starts.split(","))}
+                                       if a.yaw_starts else {})))
     a.out.mkdir(parents=True, exist_ok=True)
     rows = []
     for i in range(a.pairs):

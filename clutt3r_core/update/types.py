@@ -381,7 +381,9 @@ class PoseTrace:
         T_world: (I, 4, 4) float64 the motion after the step (p_new = T @ p_old).
         losses: (I, 5) float64 columns ``LOSS_NAMES`` = total (weighted), chamfer (fraction of the
             image diagonal), photo (mean |rgb| in [0, 1]), reg_z ((t_z/sigma_z)^2), depth (cm, 0 without depth).
-        iou: (I,) float64 IoU of the z-buffered projection with the target mask after the step.
+        iou: (I,) float64 IoU of the z-buffered projection at ``T_world[i]`` with the target mask
+            (from the optimisation's own subsampled splats; the last iteration of each stage
+            from all the points, exactly).
     """
 
     stage: np.ndarray
