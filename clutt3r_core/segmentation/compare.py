@@ -25,7 +25,8 @@ import numpy as np
 
 from clutt3r_core.errors import SceneFileError
 
-__all__ = ["LeafPairAgreement", "leaf_pair_agreement", "read_leaf2inst", "background_leaves"]
+__all__ = ["LeafPairAgreement", "LeafPairDiff", "leaf_pair_agreement", "disagreeing_pairs", "read_leaf2inst",
+           "background_leaves"]
 
 
 @dataclass(frozen=True)
@@ -77,18 +78,56 @@ def background_leaves(tree: dict | str | Path) -> set[tuple[int, int]]:
         raise SceneFileError(Path("instance_tree.json"), f"clutt3r.background_masks: bad entry ({e})") from None
 
 
-def leaf_pair_agreement(ours: dict | str | Path, reference: dict | str | Path,
-                        background_as_instance: bool = False) -> LeafPairAgreement:
-    """Leaf-pair agreement of ``ours`` with ``reference`` (module docstring).
+@dataclass(frozen=True)
+class LeafPairDiff:
+    """One common leaf pair on which the two files disagree.
 
-    ``background_as_instance``: our leaves listed as background count as one shared instance
-    (the second reading of the module docstring); False is the strict reading."""
+    ``a``, ``b``: (frame, mask) of the two leaves (``a < b``); ``ours_same``: True when we put
+    them in one instance and the reference does not (a false positive of ours), False for the
+    reverse; ``ours``, ``reference``: each side's instances of ``a`` and ``b`` (-1 = none).
+    """
+
+    a: tuple[int, int]
+    b: tuple[int, int]
+    ours_same: bool
+    ours: tuple[int, int]
+    reference: tuple[int, int]
+
+
+def disagreeing_pairs(ours: dict | str | Path, reference: dict | str | Path,
+                      background_as_instance: bool = False) -> tuple[LeafPairDiff, ...]:
+    """Every common leaf pair counted against the agreement, in (frame, mask) order (the pairs
+    behind ``leaf_pair_agreement``'s precision and recall; ``benchmarks/agreement_pairs.py``
+    explains each from a run's trace)."""
+    a, b = _instances(ours, reference, background_as_instance)
+    common = sorted(set(a) & set(b))
+    out = []
+    for i, ki in enumerate(common):
+        for kj in common[i + 1:]:
+            so = a[ki] == a[kj] and a[ki] >= 0
+            sr = b[ki] == b[kj] and b[ki] >= 0
+            if so != sr:
+                out.append(LeafPairDiff(ki, kj, so, (a[ki], a[kj]), (b[ki], b[kj])))
+    return tuple(out)
+
+
+def _instances(ours, reference, background_as_instance: bool):
     ours = _read_tree(ours)
     a, b = read_leaf2inst(ours), read_leaf2inst(reference)
     if background_as_instance:
         bg = background_leaves(ours) & set(a)
         support = max(list(a.values()) + [-1]) + 1
         a = {k: (support if k in bg else v) for k, v in a.items()}
+    return a, b
+
+
+def leaf_pair_agreement(ours: dict | str | Path, reference: dict | str | Path,
+                        background_as_instance: bool = False) -> LeafPairAgreement:
+    """Leaf-pair agreement of ``ours`` with ``reference`` (module docstring).
+
+    ``background_as_instance``: our leaves listed as background count as one shared instance
+    (the second reading of the module docstring); False is the strict reading."""
+    a, b = _instances(ours, reference, background_as_instance)
     common = sorted(set(a) & set(b))
     ia = np.array([a[k] for k in common])
     ib = np.array([b[k] for k in common])

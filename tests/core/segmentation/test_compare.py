@@ -50,3 +50,16 @@ def test_background_as_instance_is_a_second_reading_that_keeps_the_strict_one():
     assert r.precision == 0.5 and r.recall == 1.0
     # without our extra key (e.g. the original's file on our side) nothing changes
     assert leaf_pair_agreement(ref, ref, background_as_instance=True).f1 == 1.0
+
+
+def test_disagreeing_pairs_are_exactly_the_pairs_the_scores_miss():
+    from clutt3r_core.segmentation.compare import disagreeing_pairs
+
+    ours = tree([(0, 1, 0), (0, 2, 0), (1, 1, 0), (1, 2, 1), (1, 9, 0)])
+    ref = tree([(0, 1, 0), (0, 2, 1), (1, 1, 0), (1, 2, 1), (0, 5, 2)])
+    r = leaf_pair_agreement(ours, ref)
+    d = disagreeing_pairs(ours, ref)
+    assert sum(x.ours_same for x in d) == r.n_pairs_ours - r.n_pairs_both
+    assert sum(not x.ours_same for x in d) == r.n_pairs_reference - r.n_pairs_both
+    assert [(x.a, x.b, x.ours_same) for x in d] == [((0, 1), (0, 2), True), ((0, 2), (1, 1), True),
+                                                    ((0, 2), (1, 2), False)]
