@@ -174,7 +174,8 @@ def segment(
         background = np.concatenate(bg_parts) if bg_parts else np.zeros(0, bool)
         # ours (issue 13): near-identical masks of one view are one mask (segmentation/duplicates.py)
         dups = duplicate_masks(nodes.view, nodes.parent, nodes.is_leaf, background, nodes_masks,
-                               config.grouping.duplicate_iou, config.trees.tau_contain)
+                               config.grouping.duplicate_iou, config.trees.tau_contain,
+                               areas=np.concatenate([t.areas for t in trees]) if trees else None)
         nodes = NodeTable(nodes.frame, nodes.view, nodes.mask_id, nodes.parent, nodes.is_leaf & ~dups.shadow,
                           background)
     tick("embeddings + leaf graph")

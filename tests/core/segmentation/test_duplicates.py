@@ -44,6 +44,9 @@ def test_leaf_twins_are_paired_and_a_parent_copy_is_a_shadow():
     assert [(p.a, p.b) for p in d.pairs] == [(0, 1)]
     assert d.pairs[0].iou == pytest.approx(390 / 400)
     assert np.flatnonzero(d.shadow).tolist() == [4]    # u2 is the union again; B (node 8) stays a candidate
+    areas = np.concatenate([s.reshape(len(s), -1).sum(1) for s in stacks])
+    given = duplicate_masks(view, parent, is_leaf, np.zeros(9, bool), stacks, 0.9, 0.85, areas=areas)
+    assert given.pairs == d.pairs and np.array_equal(given.shadow, d.shadow)
     off = duplicate_masks(view, parent, is_leaf, np.zeros(9, bool), stacks, 0.0, 0.85)
     assert off.pairs == () and not off.shadow.any()
     # background masks are never duplicates of anything
