@@ -37,6 +37,8 @@ RULE_TEXT = {
     "same_view": "both masks are of one view: the leaf graph has no edge between them",
     "background": "a mask lies on the support surface and never takes part in the grouping",
     "not_grouped": "a parent mask that never entered the grouping (its residual leaves were not substituted)",
+    "copy_of_parent": "a childless copy of a parent mask of its view (pixel IoU >= grouping.duplicate_iou): "
+                      "no candidate (segmentation/duplicates.py)",
     "one_mask_per_view": "their groups share a view (one mask per view per group)",
     "overlap_gate": "stage-2 overlap gate: their groups share no super-voxel (mean S_spatial = 0)",
     "below_tau_spat": "mean S_spatial of their groups below tau_spat",
@@ -338,6 +340,8 @@ def _absent_rule(t: Trace, i: int) -> str:
     n = t.nodes
     if n.background[i]:
         return "background"
+    if not n.is_leaf[i] and not (n.parent == i).any():  # no child: a copy whose is_leaf was cleared
+        return "copy_of_parent"
     return "not_grouped"
 
 

@@ -145,3 +145,37 @@ def test_the_twice_emitted_clamp_of_sample_seq1_is_one_instance(seq1_dir):
     assert len({int(inst[m.a[0]]) for m in joins} | {int(inst[m.b[0]]) for m in joins}) == 1
     # measured 0.964 (0.959 before the rule)
     assert leaf_pair_agreement(instance_tree_json(seg), seq1_dir / "instance_tree.json").f1 >= 0.96
+
+
+def test_a_childless_copy_of_a_parent_is_no_candidate_on_a_generated_scene():
+    from clutt3r_core.explain import explain_pair
+
+    base = generate_scene(SynthConfig(seed=0, preset="easy", views=3, width=240, height=180, n_objects=3,
+                                      mask_noise="clean"), progress=False)
+    # view 0 gets the union of its two largest object masks twice (a parent of both, and its copy
+    # without the top row): the tree hands both objects to one copy and leaves the other childless
+    views = list(base.views)
+    v = views[0]
+    m = v.masks
+    order = np.argsort(-m.masks.reshape(len(m), -1).sum(1))
+    union = m.masks[order[1]] | m.masks[order[2]]
+    copy = union.copy()
+    copy[np.flatnonzero(copy.any(axis=1))[0]] = False
+    ids = [int(m.ids.max()) + 1, int(m.ids.max()) + 2]
+    views[0] = replace(v, masks=MaskCandidates(np.concatenate([m.masks, union[None], copy[None]]),
+                                               np.concatenate([m.ids, ids])))
+    scene = Scene(tuple(views), base.initial, base.post, base.ground_truth, base.name)
+    seg = segment(scene)
+    off = segment(scene, with_fields(SegmentConfig(), {"grouping.duplicate_iou": 0.0}))
+    listed = {(e["frame"], e["mask"]) for e in instance_tree_json(seg)["initial"]["leaf2inst"]}
+    listed_off = {(e["frame"], e["mask"]) for e in instance_tree_json(off)["initial"]["leaf2inst"]}
+    f = v.frame
+    # without the rule the childless copy is a leaf, a candidate of its own; with it, it is neither
+    assert len({(f, i) for i in ids} & listed_off) == 1 and not {(f, i) for i in ids} & listed
+    shadow = next(i for i in ids if (f, i) in listed_off)
+    n = seg.trace.nodes
+    node = int(np.flatnonzero((n.frame == f) & (n.mask_id == shadow))[0])
+    assert not n.is_leaf[node] and not any(node in g for g in seg.trace.grouping.groups)
+    other = int(np.flatnonzero((n.frame != f) & n.is_leaf & ~n.background)[0])
+    assert explain_pair(seg, node, other).rule == "copy_of_parent"
+    assert seg.num_instances == segment(base).num_instances
