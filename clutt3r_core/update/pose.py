@@ -40,6 +40,7 @@ with the fine weights. Every step is recorded (pose, losses, IoU).
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 from scipy import ndimage
@@ -47,7 +48,7 @@ from scipy import ndimage
 from clutt3r_core.update.project import OCCLUSION_MARGIN, splat, splat_radius
 from clutt3r_core.update.types import LOSS_NAMES, PoseConfig, PoseProblem, PoseResult, PoseTrace, StageConfig
 
-__all__ = ["TorchPoseOptimizer", "motion_matrix", "initial_translation"]
+__all__ = ["TorchPoseOptimizer", "motion_matrix", "initial_translation", "tilted_start"]
 
 
 def motion_matrix(R: np.ndarray, c: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -93,9 +94,81 @@ class TorchPoseOptimizer:
         prev_threads = torch.get_num_threads()
         torch.set_num_threads(self.threads)
         try:
+            if problem.T_init is None and self.config.tilt_starts:
+                T = tilted_start(problem, self.config)
+                if T is not None:  # a tipped-over placement explains the mask better: start there
+                    problem = replace(problem, T_init=T)
             return _Solver(problem, self.config, torch).run()
         finally:
             torch.set_num_threads(prev_threads)
+
+
+def _placements(problem: PoseProblem, cfg: PoseConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(S, 4, 4) motions of the start placements, (S,) their score, (S,) bool upright."""
+    from clutt3r_core.update.depth import start_rotations
+
+    pts = problem.points.astype(np.float64)
+    cols = problem.colors.astype(np.float64)
+    if len(pts) > cfg.max_points:
+        idx = np.sort(np.random.default_rng(0).choice(len(pts), cfg.max_points, replace=False))
+        pts, cols = pts[idx], cols[idx]
+    scale = float(np.sqrt(len(problem.points) / len(pts)))
+    c = pts.mean(axis=0)
+    Rs = start_rotations(cfg.tilt_yaw_step_deg, tilts=True)
+    n_up = len(start_rotations(cfg.tilt_yaw_step_deg, tilts=False))
+    cam = problem.camera
+    vs, us = np.nonzero(problem.mask)
+    o = cam.T_world_camera[:3, 3]
+    d = cam.T_world_camera[:3, :3] @ np.linalg.solve(cam.K, np.array([us.mean(), vs.mean(), 1.0]))
+    zmin = pts[:, 2].min()
+    area = int(np.count_nonzero(problem.mask))
+    Ts, scores = [], []
+    for R in Rs:
+        q = (pts - c) @ R.T + c
+        height = c[2] + zmin - q[:, 2].min()  # resting on the same support height
+        sray = (height - o[2]) / d[2] if abs(d[2]) > 1e-6 else 0.0
+        t = (o + sray * d - c) if sray > 0 else initial_translation(problem, c)
+        T = motion_matrix(R, c, t)
+        p = pts @ T[:3, :3].T + T[:3, 3]
+        sp = splat(p, cam, problem.voxel_size, scale)
+        if not (sp.h and sp.w):
+            Ts.append(T)
+            scores.append(0.0)
+            continue
+        sil = np.isfinite(sp.zbuf) & (sp.zbuf <= sp.crop(problem.occluder_depth) + OCCLUSION_MARGIN)
+        inter = int(np.count_nonzero(sil & sp.crop(problem.mask)))
+        iou = inter / max(int(np.count_nonzero(sil)) + area - inter, 1)
+        # colours of the points it shows (a box tipped on its side shows other faces)
+        ok = sp.centre >= 0
+        cf = np.maximum(sp.centre, 0)
+        vis = ok & (sp.z <= sp.zbuf.reshape(-1)[cf] + OCCLUSION_MARGIN) & (
+            sp.z <= sp.crop(problem.occluder_depth).reshape(-1)[cf] + OCCLUSION_MARGIN)
+        photo = 0.0
+        if vis.any():
+            img = sp.crop(problem.rgb).reshape(-1, 3)[cf[vis]].astype(np.float64)
+            photo = float(np.mean(np.abs(img - cols[vis]).mean(axis=1) <= cfg.tilt_color_tol))
+        Ts.append(T)
+        scores.append(iou * (0.5 + 0.5 * photo))
+    up = np.zeros(len(Rs), bool)
+    up[:n_up] = True
+    return np.stack(Ts), np.array(scores), up
+
+
+def tilted_start(problem: PoseProblem, cfg: PoseConfig) -> np.ndarray | None:
+    """The best tipped-over start placement (``PoseConfig.tilt_starts``), or None when an upright
+    one scores within ``tilt_margin`` of it (then the paper's yaw starts run as before).
+
+    Placements: the start rotations of the depth registration (the six ways the object's up
+    axis can point x yaws every ``tilt_yaw_step_deg``) about the centroid, resting on the
+    same support height, the centroid on the viewing ray of the mask's centroid. Score = IoU
+    of the occluded silhouette with the mask x (0.5 + 0.5 x the fraction of its visible
+    points whose stored colour is within ``tilt_color_tol`` of the image)."""
+    if not problem.mask.any():
+        return None
+    Ts, score, up = _placements(problem, cfg)
+    if score[~up].max() < score[up].max() + cfg.tilt_margin:
+        return None
+    return Ts[int(np.argmax(np.where(up, -1.0, score)))]
 
 
 class _Solver:

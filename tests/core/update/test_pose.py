@@ -105,3 +105,26 @@ def test_bad_problem_is_refused():
         PoseProblem(0, pb.points, pb.colors, pb.camera, pb.rgb, pb.mask[:-1], pb.occluder_depth)
     with pytest.raises(SceneError, match="dof"):
         PoseConfig(dof="xyz")
+
+
+def test_a_box_tipped_on_its_side_is_recovered_from_a_tilted_start():
+    from dataclasses import replace
+
+    from scipy.spatial.transform import Rotation
+
+    from clutt3r_core.update.pose import tilted_start
+
+    _, c = _problem(np.eye(4))
+    R = Rotation.from_rotvec([np.pi / 2, 0, 0]).as_matrix()  # on its side: 4 cm tall instead of 6
+    pts = two_box_scene()[0][two_box_scene()[2] == 0].astype(np.float64)
+    drop = ((pts - c) @ R.T + c)[:, 2].min() - pts[:, 2].min()  # it rests on the table again
+    T = motion_matrix(R, c, np.array([0.02, 0.03, -drop]))
+    pb, _ = _problem(T)
+    T0 = tilted_start(pb, FAST)
+    assert T0 is not None
+    assert _errors(T0, T, c)[0] <= 16.0  # within half the 30 deg yaw step of the placements
+    angle, shift = _errors(TorchPoseOptimizer(FAST).optimize(pb).T_world, T, c)
+    assert angle < 5.0 and shift < 0.006, (angle, shift)
+    # the yaw fit alone cannot tip it over
+    angle0, _ = _errors(TorchPoseOptimizer(replace(FAST, tilt_starts=False)).optimize(pb).T_world, T, c)
+    assert angle0 > 45.0
