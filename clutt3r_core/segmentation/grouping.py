@@ -109,9 +109,11 @@ class GroupingConfig:
     sample_seq1's clamp, emitted twice in 7 of 8 views (IoU 0.98-0.99), was two instances and all
     20 disagreeing leaf pairs (now one instance; leaf-pair F1 0.959 -> 0.964); sample_seq4's
     mustard-and-banana mask emitted 2-3 times per view left childless copies that grouped as an
-    extra object (F1 0.895 -> 0.897); a union of an object and a sliver of its neighbour measured
-    0.88. The generated candidates have no copies: no pair on the quick suite, AP unchanged.
-    0 = off (the paper's text: every leaf is its own candidate)."""
+    extra object (F1 0.895 -> 0.897); masks of different extent (a can and the can plus a knife
+    handle) measured 0.875-0.891. The generated candidates have no copies (no pair on the quick
+    suite, AP unchanged); with copies injected (``benchmarks/bench_duplicates.py``, held-out seeds
+    0-1) AP 25.6 without the rule, 39.0 with it, 38.6 without copies. 0 = off (the paper's text:
+    every leaf is its own candidate)."""
     substitute_stranded_parents: bool = True
     """Ours (issue 13, fix of a fragile spot): with background masks excluded, a non-background
     mask whose every descendant is background (e.g. an object mask whose only child is a blob
@@ -490,7 +492,7 @@ def run_grouping(nodes: NodeTable, sim: SimilarityGraph, n_views: int, cfg: Grou
                  duplicates: "tuple[DuplicatePair, ...]" = ()) -> GroupingResult:
     """Algorithm 1 plus substitution and regrouping. Background nodes never take part.
 
-    ``duplicates`` (``segmentation.duplicates.duplicate_leaves``, ours): pairs of leaves of one
+    ``duplicates`` (``Duplicates.pairs`` of ``segmentation.duplicates.duplicate_masks``, ours): pairs of leaves of one
     view that are the same candidate; each connected set starts as one group (recorded as
     ``"duplicate"`` merges before stage 1). Ignored when ``cfg.duplicate_iou`` is 0.
     """
