@@ -254,9 +254,11 @@ class FusedCloud:
 
 
 # Points per block of the normal estimation: bounds the (block, knn) neighbour
-# offsets and indices (3 x 20 x 16 Ki float64 + 20 x 16 Ki int64 = 10 MiB) at 1080p,
-# where N reaches a few 100 k; larger blocks measured no faster.
-_NORMAL_BLOCK = 1 << 14
+# offsets, distances and indices (about 5 x 20 x 4 Ki x 8 B = 3 MiB); measured on
+# sample_seq4 the stage's traced peak is 27 MiB with 4 Ki blocks and 43 MiB with 16 Ki
+# ones, at the same speed (issue 13, 1080p memory). Each row's result is independent of
+# the block it falls in (the same bits, tests/core/test_normals.py).
+_NORMAL_BLOCK = 1 << 12
 
 
 def _estimate_normals(points: np.ndarray, knn: int, *, neighbours: bool = False):
@@ -479,7 +481,8 @@ def fuse_views(views: Sequence[View], cfg: PointCloudConfig = PointCloudConfig()
         vv = vox[offsets[i] : offsets[i + 1]]
         fed = vv < n
         # pixels ascend (row-major strided grid), as PixelVoxelMaps expects
-        pixel_pairs.append((pix_list[i][fed], vv[fed]))
+        # int32 now (PixelVoxelMaps stores them so): int64 pairs were live during the normals
+        pixel_pairs.append((pix_list[i][fed].astype(np.int32), vv[fed]))
         vis[i, vv] = True
         pix_list[i] = None
     del vox

@@ -134,3 +134,23 @@ def test_smallest_eigvec_matches_eigh_on_random_covariances():
     ours = _smallest_eigvec(_sym6(cov))
     ref = np.linalg.eigh(cov)[1][:, :, 0]
     assert _angles_deg(ours, ref).max() < 1e-5
+
+
+def test_normals_and_neighbours_do_not_depend_on_the_block_size(monkeypatch):
+    """Issue 13: the estimate runs in blocks of rows (memory at 1080p); each row's normal and
+    neighbour list must be the same bits whatever block it falls in, and the table is the
+    k-NN query's (the super-voxel graph reuses it)."""
+    import clutt3r_core.pointcloud as pc
+    from scipy.spatial import cKDTree
+
+    pts = _noisy_surfaces(seed=5)
+    whole, table = None, None
+    for block in (1 << 20, 4096, 997, 7):
+        monkeypatch.setattr(pc, "_NORMAL_BLOCK", block)
+        nrm, tab = _estimate_normals(pts, 20, neighbours=True)
+        if whole is None:
+            whole, table = nrm, tab
+            np.testing.assert_array_equal(tab, cKDTree(pts).query(pts, k=20)[1])
+            assert tab.dtype == np.int32
+        np.testing.assert_array_equal(nrm, whole)
+        np.testing.assert_array_equal(tab, table)
