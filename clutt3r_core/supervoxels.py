@@ -421,6 +421,9 @@ def _mark_support(
 
     # Rule 3: further large planar patches (tray walls, rims, a raised tray floor).
     near = dist <= 2.0 * cloud.voxel_size  # patch connectivity: k-NN pairs within two voxels
+    near_src, near_dst = src[near], dst[near]
+    del near
+    slot = np.empty(n, np.int32)  # a voxel's index among the current plane's inliers
     min_dot = float(np.cos(np.deg2rad(cfg.patch_max_angle)))
     min_inl = max(cfg.patch_min_voxels, 3)
     free = ~bad
@@ -437,8 +440,12 @@ def _mark_support(
         inl = np.zeros(n, bool)
         inl[idx[fit[1]]] = True
         free &= ~inl  # never re-fit these voxels, large patch or not
-        keep = near & inl[src] & inl[dst]
-        comp = _components(n, src[keep], dst[keep])
+        # patches: components of the inliers' own graph (a few thousand voxels, not all N)
+        members = np.flatnonzero(inl)
+        keep = inl[near_src] & inl[near_dst]
+        slot[members] = np.arange(len(members), dtype=np.int32)
+        comp = np.zeros(n, np.int64)
+        comp[members] = _components(len(members), slot[near_src[keep]], slot[near_dst[keep]])
         big = _patch_extent(uvh, comp, inl) >= cfg.max_object_extent
         bad |= big
 
