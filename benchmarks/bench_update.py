@@ -24,7 +24,7 @@ views, run ``update_scene`` on the post view, and score against ``gt/interaction
 Usage::
 
     .venv/bin/python benchmarks/bench_update.py --out /tmp/bench_update [--pairs 12] [--seed0 100] \
-        [--embedder run] [--no-depth] [--no-depth-cues] [--refine-registration]
+        [--embedder run] [--no-depth] [--no-depth-cues] [--refine-registration] [--no-photo] [--tilt-starts]
 
 Scenes and runs are cached under ``--out`` (delete to regenerate). Prints a markdown table and
 writes ``results.json`` and one overlay PNG per pair.
@@ -285,6 +285,8 @@ def main() -> None:
                     help="PoseConfig.registration_tie_margin")
     ap.add_argument("--yaw-starts", default=None,
                     help="PoseConfig.yaw_starts_deg as comma-separated degrees (default: the config's)")
+    ap.add_argument("--tilt-starts", action="store_true",
+                    help="PoseConfig.tilt_starts: tipped-over start placements for the RGB-only fit")
     ap.add_argument("--no-photo", action="store_true",
                     help="ChangeConfig.use_photo=False: without depth, the IoU test and rule 5's colour-and-mask test")
     ap.add_argument("--tag", default="", help="suffix of results_<tag>.json")
@@ -294,7 +296,7 @@ def main() -> None:
                        pose=replace(PoseConfig(), dof=a.dof, early_exit=not a.no_early_exit,
                                     refine_registration=a.refine_registration,
                                     registration_photo_weight=a.photo_weight,
-                                    registration_tie_margin=a.tie_margin,
+                                    registration_tie_margin=a.tie_margin, tilt_starts=a.tilt_starts,
                                     **({"yaw_starts_deg": tuple(float(x) for x in a.yaw_starts.split(","))}
                                        if a.yaw_starts else {})))
     a.out.mkdir(parents=True, exist_ok=True)
