@@ -2,7 +2,7 @@
 
 Usage::
 
-    .venv/bin/python benchmarks/bench_command.py [--base dfdac67] [--runs 3] [--work /tmp/clutt3r-bench-command]
+    .venv/bin/python benchmarks/bench_command.py [--base 2bca0bb] [--current REF] [--runs 3] [--work /tmp/clutt3r-bench-command]
         [--scenes hard:0] [--samples sample_seq4] [--no-base] [--out results.json]
 
 Issue 13 measured the whole command, not only the core: on a hard 640x480 8-view scene it
@@ -20,10 +20,10 @@ checkout's virtual environment and ``PYTHONPATH`` set to the tree), it measures:
   script runs) as a subprocess: wall time, CPU time (user + sys) and peak resident set
   (``os.wait4``'s ``ru_maxrss`` of that child), median over ``--runs`` (max for the RSS);
   base and current runs alternate, so both see the same machine load;
-- core: ``segment(load_scene(SCENE))`` in one fresh process per tree: the first call (it
-  pays the lazy imports: scipy.spatial, and open3d in the baseline) and the median of
-  ``--runs`` further calls, wall and CPU; mask generation is not involved (the scenes have
-  mask candidates);
+- core: ``segment(load_scene(SCENE))`` in ``--runs`` fresh processes per tree, alternating
+  like the whole command: each makes a first call (it pays the lazy imports: scipy.spatial,
+  and open3d before dfdac67) and one warm call, wall and CPU; medians over the processes;
+  mask generation is not involved (the scenes have mask candidates);
 - same: whether the two trees' ``instances.npz`` instance labels are identical.
 
 CPU time is the fairer number on a loaded machine (the segment command is mostly one
@@ -57,7 +57,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT.parent / "shared" / "data" / "clutt3r-samples"
-BASE_REF = "dfdac67"  # main before the issue-13 speed work (lazy CLI, normals without open3d)
+# main at the start of the second round of issue-13 speed work (overview splat, BLAS threads,
+# shared k-NN); the first round's base was dfdac67 (before the lazy CLI and open3d-free normals)
+BASE_REF = "2bca0bb"
 TARGETS = {  # whole-process wall s, core wall s, peak RSS MiB (issue 13)
     "generated": (2.0, 1.0, None),
     "sample_seq4": (4.0, None, 600.0),
@@ -205,13 +207,20 @@ def main() -> None:
         if len(trees) == 2:
             row["same_instances"] = _same_instances(*(args.work / "runs" / f"{folder.name}_{t}" for t in trees))
         if not args.no_core:
-            for t, tree in trees.items():
-                r = _run_child([py, "-c", _CORE_HARNESS, str(folder), str(args.runs)], tree, _env(tree))
-                line = [x for x in r["output"].splitlines() if x.startswith("CORE=")]
-                if r["rc"] != 0 or not line:
-                    raise SystemExit(f"{t} core failed on {folder}:\n{r['output'][-3000:]}")
-                calls = json.loads(line[0][5:])
-                row["core"][t] = {"first": calls[0], "warm": calls[1:]}
+            # one process per tree and run, alternating like the whole command (a process that
+            # made all of one tree's calls in a row saw a different machine load than the other)
+            row["core"] = {t: {"first": [], "warm": []} for t in trees}
+            for i in range(args.runs):
+                for t, tree in trees.items():
+                    r = _run_child([py, "-c", _CORE_HARNESS, str(folder), "1"], tree, _env(tree))
+                    line = [x for x in r["output"].splitlines() if x.startswith("CORE=")]
+                    if r["rc"] != 0 or not line:
+                        raise SystemExit(f"{t} core failed on {folder}:\n{r['output'][-3000:]}")
+                    calls = json.loads(line[0][5:])
+                    row["core"][t]["first"].append(calls[0])
+                    row["core"][t]["warm"].extend(calls[1:])
+                    print(f"{label} {t} core run {i}: first {calls[0][0]:.2f} s, warm {calls[1][0]:.2f} s wall",
+                          file=sys.stderr)
         results.append(row)
     _print_table(results, list(trees))
     if args.out:
@@ -245,7 +254,8 @@ def _print_table(results: list[dict], trees: list[str]) -> None:
              "{:.0f}", t_rss)
         if row["core"]:
             c = row["core"]
-            line(row["scene"], "core, first call wall s", {t: c[t]["first"][0] for t in trees}, "{:.2f}", None)
+            line(row["scene"], "core, first call wall s (median)", {t: med(x[0] for x in c[t]["first"]) for t in trees},
+                 "{:.2f}", None)
             line(row["scene"], "core, warm wall s (median)", {t: med(x[0] for x in c[t]["warm"]) for t in trees},
                  "{:.2f}", t_core)
             line(row["scene"], "core, warm CPU s (median)", {t: med(x[1] for x in c[t]["warm"]) for t in trees},
