@@ -179,3 +179,35 @@ def photo_check(points: np.ndarray, colors: np.ndarray, instance: np.ndarray, id
     count = lambda m: np.bincount(li[m], minlength=K + 1)[:K].astype(np.int64)  # noqa: E731
     return PhotoCheck(ids, count(np.ones(len(li), bool)), count(informative), count(ok & informative),
                       gain.astype(np.float64), float(tol), sigma)
+
+
+def photo_at_pose(points: np.ndarray, colors: np.ndarray, T: np.ndarray, camera: Camera, rgb: np.ndarray,
+                  voxel: float, occluder_depth: np.ndarray | None, gain: np.ndarray, tol: float,
+                  search_px: int = 1) -> tuple[int, float]:
+    """(visible pixels, agree fraction) of one instance's points moved by T (z-buffered behind
+    ``occluder_depth``), with the gain and tolerance of a ``PhotoCheck``: do the colours of an
+    optimised pose match the image there? (All visible pixels count: the background around
+    the new place is not known to the stored cloud.)"""
+    p = np.asarray(points, np.float64) @ T[:3, :3].T + T[:3, 3]
+    s = splat(p, camera, voxel)
+    if not (s.h and s.w):
+        return 0, float("nan")
+    inside = s.centre >= 0
+    cf = np.maximum(s.centre, 0)
+    vis = inside & (s.z <= s.zbuf.reshape(-1)[cf] + OCCLUSION_MARGIN)
+    if occluder_depth is not None:
+        vis &= s.z <= s.crop(occluder_depth).reshape(-1)[cf] + OCCLUSION_MARGIN
+    c = np.unique(s.centre[vis])
+    win = s.point.reshape(-1)[c]
+    c, win = c[win >= 0], win[win >= 0]
+    if not len(c):
+        return 0, float("nan")
+    vv, uu = s.v0 + c // s.w, s.u0 + c % s.w
+    pred = np.clip(np.asarray(colors, np.float64)[win] * gain, 0.0, 255.0)
+    H, W = rgb.shape[:2]
+    best = np.full(len(pred), np.inf)
+    for dv in range(-search_px, search_px + 1):
+        for du in range(-search_px, search_px + 1):
+            n2 = rgb[np.clip(vv + dv, 0, H - 1), np.clip(uu + du, 0, W - 1)].astype(np.float64)
+            best = np.minimum(best, np.abs(n2 - pred).mean(axis=1))
+    return len(c), float(np.mean(best <= tol))

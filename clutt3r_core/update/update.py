@@ -37,7 +37,7 @@ from clutt3r_core.scene import MaskCandidates, View
 from clutt3r_core.segmentation.trees import build_instance_tree
 from clutt3r_core.update.associate import Association, Projection, associate, project_instances, unmatched_status
 from clutt3r_core.update.depth_change import depth_changes, fit_iou, registration_result
-from clutt3r_core.update.photo_change import PhotoCheck, photo_check
+from clutt3r_core.update.photo_change import PhotoCheck, photo_at_pose, photo_check
 from clutt3r_core.update.project import mask_iou
 from clutt3r_core.update.state import SceneState
 from clutt3r_core.update.types import TAU_SEM_BY_EMBEDDER, InstanceUpdate, NewMask, PoseProblem, UpdateConfig, UpdateResult
@@ -113,6 +113,7 @@ def update_scene(
     proj_all = project_instances(state.points, state.instance, ids, cam, voxel, scale, colors=state.colors)
     cc = config.change
     photo: dict[int, str] = {}
+    pc = None
     if cc.use_photo and not (cc.use_depth and view.depth is not None):
         pc = photo_check(state.points, state.colors, state.instance, ids, cam, view.rgb, voxel,
                          tol_min=cc.photo_tol_min, tol_sigma=cc.photo_tol_sigma, search_px=cc.photo_search_px,
@@ -221,11 +222,20 @@ def update_scene(
                 mask=new_mask[k], occluder_depth=occ_proj.depth, depth=view.depth, voxel_size=voxel,
             )
             res = optimizer.optimize(pb)
-            if config.change.verify and "semantic" in assoc.match[i] and res.iou_after < config.change.min_fit_iou:
+            worse = False
+            if pc is not None and cc.verify and cc.photo_verify_fit:
+                # the colours must support the move at least as much as staying (ours)
+                n1, f1 = photo_at_pose(pb.points, pb.colors, res.T_world, cam, view.rgb, voxel, occ_proj.depth,
+                                       pc.gain, pc.tol, cc.photo_search_px)
+                n0, f0 = photo_at_pose(pb.points, pb.colors, np.eye(4), cam, view.rgb, voxel, occ_proj.depth,
+                                       pc.gain, pc.tol, cc.photo_search_px)
+                worse = min(n0, n1) >= cc.photo_min_points and f1 < f0
+            if config.change.verify and "semantic" in assoc.match[i] and (
+                    res.iou_after < config.change.min_fit_iou or worse):
                 # an appearance match that no rigid motion fits is not this object: unmatched
                 st_k, how_k = unmatched_status(view, proj_all, i, config.association, photo.get(k, ""))
                 records.append(InstanceUpdate(k, st_k, None, None, None, -1, how_k or "semantic-rejected", pose=res))
-            elif config.change.verify and not _moved(res, state.points[sel].mean(axis=0), iou[k], config):
+            elif config.change.verify and (worse or not _moved(res, state.points[sel].mean(axis=0), iou[k], config)):
                 records.append(InstanceUpdate(k, "static", iou[k], iou[k], None, mid, assoc.match[i], pose=res))
             else:
                 records.append(InstanceUpdate(k, "displaced", iou[k], res.iou_after, res.T_world, mid,

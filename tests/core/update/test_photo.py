@@ -112,3 +112,24 @@ def test_unchanged_scene_with_any_exposure_change_flags_nothing(g, noise, seed):
     res = update_scene(s, _post(gain=g, noise=noise, seed=seed), FAST)
     assert [r.status for r in res.instances] == ["static", "static"]
     assert all(r.T_world is None for r in res.instances)
+
+
+def test_colours_support_the_true_motion_and_not_a_wrong_one():
+    from clutt3r_core.update.photo_change import photo_at_pose
+
+    from ._scenes import yaw_motion
+
+    s = _state()
+    sel = s.instance == 0
+    c = s.points[sel].astype(np.float64).mean(axis=0)
+    T = yaw_motion(35.0, (0.0, -0.07, 0.0), c)
+    pts = s.points.astype(np.float64).copy()
+    pts[sel] = pts[sel] @ T[:3, :3].T + T[:3, 3]
+    v = render_view(pts.astype(np.float32), s.colors, s.instance, camera(**NEW_CAM), frame=8, with_depth=False)
+    g = np.ones(3)
+    n1, at_true = photo_at_pose(s.points[sel], s.colors[sel], T, v.camera, v.rgb, VOXEL, None, g, 15.0)
+    n0, at_old = photo_at_pose(s.points[sel], s.colors[sel], np.eye(4), v.camera, v.rgb, VOXEL, None, g, 15.0)
+    wrong = yaw_motion(-35.0, (0.0, -0.07, 0.0), c)  # the right place, turned the wrong way
+    n2, at_wrong = photo_at_pose(s.points[sel], s.colors[sel], wrong, v.camera, v.rgb, VOXEL, None, g, 15.0)
+    assert min(n0, n1, n2) >= 20
+    assert at_true >= 0.9 and at_old <= 0.5 and at_wrong < at_true - 0.2, (at_true, at_old, at_wrong)
