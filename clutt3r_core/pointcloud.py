@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Literal, Sequence
 
 import numpy as np
 
@@ -61,7 +61,15 @@ class PointCloudConfig:
     voxels of 5 mm span about a 2 cm disc, enough to average depth noise while keeping
     object edges)."""
 
+    surface: Literal["voxel-mean", "tsdf"] = "voxel-mean"
+    """How the raw points of all views become the fused surface. ``voxel-mean`` (Sec. IV): each
+    kept voxel is the mean of the raw points in it. ``tsdf`` (ours, issue 13): the raw points are
+    first moved onto the views' consensus surface, the zero crossing of a truncated signed
+    distance field averaged over the views (``clutt3r_core.surface``), then voxel-averaged."""
+
     def __post_init__(self) -> None:
+        if self.surface not in ("voxel-mean", "tsdf"):
+            raise SceneError(f"PointCloudConfig.surface must be 'voxel-mean' or 'tsdf', got {self.surface!r}")
         if not self.voxel_size > 0:
             raise SceneError(f"PointCloudConfig.voxel_size must be > 0, got {self.voxel_size}")
         if self.min_points < 1:
@@ -439,6 +447,13 @@ def fuse_views(views: Sequence[View], cfg: PointCloudConfig = PointCloudConfig()
     pts_list.clear()
     C = np.concatenate(col_list)
     col_list.clear()
+    min_points = cfg.min_points
+    if cfg.surface == "tsdf":  # ours (issue 13): raw points moved onto the views' consensus surface
+        from clutt3r_core.surface import snap_raw_points
+
+        # it drops the points of voxels that fail its own occupancy rule (clutt3r_core.surface)
+        P, C, pix_list, offsets = snap_raw_points(views, P, C, pix_list, offsets, strides, cfg)
+        min_points = 1
 
     # Integer voxel keys packed into one int64, then grouped.
     if len(P):
@@ -462,7 +477,7 @@ def fuse_views(views: Sequence[View], cfg: PointCloudConfig = PointCloudConfig()
     else:
         inverse = np.zeros(0, np.int64)
         counts = np.zeros(0, np.int64)
-    keep = counts >= cfg.min_points
+    keep = counts >= min_points
     n = int(keep.sum())
     # Dropped voxels map to a trash bin n, so the sums below need no masking.
     remap = np.full(len(counts), n, dtype=np.int32)
