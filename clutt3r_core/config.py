@@ -199,6 +199,7 @@ ADDED_AFTER_V1: dict[str, Any] = {
     "refine.min_won_fraction": 0.0,
     "refine.weak_echo_ratio": 0.0,
     "grouping.duplicate_iou": 0.0,
+    "pointcloud.surface": "voxel-mean",
 }
 """Fields added after trace version 1, each with the value that reproduces the code that wrote
 such a trace (issue 13: the first two only made existing rules switchable; the others are
