@@ -51,3 +51,32 @@ def test_seq1_roundtrip_is_lossless(seq1_dir, tmp_path):
             np.testing.assert_array_equal(np.nan_to_num(va.depth), np.nan_to_num(vb.depth))
         np.testing.assert_array_equal(va.masks.ids, vb.masks.ids)
         np.testing.assert_array_equal(va.masks.masks, vb.masks.masks)
+
+
+def test_npz_bytes_reads_back_as_savez_compressed_would():
+    """Issue 13: the tool's .npz files are written at zlib level 1 (half the CPU of numpy's
+    default level); np.load must read the same arrays, dtypes and shapes, scalars and empty
+    arrays included, from members that are deflated."""
+    import io
+    import zipfile
+
+    from clutt3r_core.io.images import npz_bytes
+
+    rng = np.random.default_rng(0)
+    arrays = {
+        "points": rng.random((1000, 3)).astype(np.float32),
+        "labels": rng.integers(-1, 9, 1000).astype(np.int32),
+        "flags": rng.random(37) < 0.5,
+        "scalar": np.int32(7),
+        "empty": np.zeros((0, 4), np.float64),
+        "text": np.array("a phrase"),
+    }
+    data = npz_bytes(**arrays)
+    with zipfile.ZipFile(io.BytesIO(data)) as zf:
+        assert sorted(zf.namelist()) == sorted(k + ".npy" for k in arrays)
+        assert all(i.compress_type == zipfile.ZIP_DEFLATED for i in zf.infolist())
+    with np.load(io.BytesIO(data)) as z:
+        for k, v in arrays.items():
+            got = z[k]
+            assert got.dtype == np.asarray(v).dtype and got.shape == np.shape(v)
+            np.testing.assert_array_equal(got, v)
