@@ -35,6 +35,18 @@ idle machine's; ``--current`` = dfdac67 plus the speed commits only), current / 
 hard 640x480 whole command CPU 7.02 / 7.53 s, peak RSS 332 / 435 MiB, warm core CPU 3.61 /
 3.02 s; sample_seq4 whole command CPU 14.32 / 15.25 s, peak RSS 649 / 826 MiB, warm core CPU
 4.93 / 4.13 s; instances identical. Table and reading: docs/benchmark.md, "Whole command".
+
+Second round, measured 2026-11-30 19:47-19:51 UTC against 2bca0bb (``--current`` = 2bca0bb
+plus the second round's speed commits only; shared 2-core machine, load average 3.4-5.6),
+median of 3, current / base: hard 640x480 whole command wall 3.35 / 3.94 s (0.85), CPU
+3.84 / 5.72 s (0.67), peak RSS 333 / 336 MiB; warm core wall 1.98 / 2.25 s, CPU 2.20 /
+3.13 s (0.70); sample_seq4 whole command wall 7.57 / 13.29 s (0.57), CPU 7.57 / 13.63 s
+(0.56), peak RSS 662 / 677 MiB; warm core CPU 3.12 / 3.86 s. Instances, cloud.npz and
+overview.png identical. What made the difference: overview.png's splat (1 s of CPU per
+1080p view before), numpy's BLAS on one thread (its idle threads spun: ~1 s of CPU per
+run), the super-voxel graph reusing the normals' k-NN table, npz files at zlib level 1.
+Still missed: 2 s and 1 s at 640x480, 4 s and 600 MiB at 1080p (the 1080p masks alone are
+240 MiB of bool stacks; see the report of the second round in docs/benchmark.md).
 Base and ``--current`` checkouts are ``git worktree``s under ``--work``, kept for the next run
 (``git worktree remove`` them when done).
 
