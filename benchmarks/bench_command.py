@@ -46,7 +46,7 @@ overview.png identical. What made the difference: overview.png's splat (1 s of C
 1080p view before), numpy's BLAS on one thread (its idle threads spun: ~1 s of CPU per
 run), the super-voxel graph reusing the normals' k-NN table, npz files at zlib level 1.
 Still missed: 2 s and 1 s at 640x480, 4 s and 600 MiB at 1080p (the 1080p masks alone are
-240 MiB of bool stacks; see the report of the second round in docs/benchmark.md).
+240 MiB of bool stacks; docs/benchmark.md, "Whole command", second round).
 Base and ``--current`` checkouts are ``git worktree``s under ``--work``, kept for the next run
 (``git worktree remove`` them when done).
 
