@@ -200,6 +200,7 @@ ADDED_AFTER_V1: dict[str, Any] = {
     "refine.weak_echo_ratio": 0.0,
     "grouping.duplicate_iou": 0.0,
     "pointcloud.surface": "voxel-mean",
+    "pointcloud.surface_min_points": 2,
 }
 """Fields added after trace version 1, each with the value that reproduces the code that wrote
 such a trace (issue 13: the first two only made existing rules switchable; the others are

@@ -67,6 +67,14 @@ class PointCloudConfig:
     first moved onto the views' consensus surface, the zero crossing of a truncated signed
     distance field averaged over the views (``clutt3r_core.surface``), then voxel-averaged."""
 
+    surface_min_points: int = 2
+    """With ``surface="tsdf"``: moved points a voxel needs to be kept, or one point moved from a
+    voxel of that many raw points (ours, issue 13; replaces ``min_points``, which counts raw
+    points spread by the noise). Measured on held-out generated scenes with RealSense-like depth:
+    1 and 2 give the same AP (51.4 / 51.1 mean) but 1 keeps 2.5x the voxels of the plain fusion
+    (every sparse far-table sample) and 2 keeps 1.2x; 3 lost 6 AP against 1 on the tuning scenes
+    (first version of the estimate)."""
+
     def __post_init__(self) -> None:
         if self.surface not in ("voxel-mean", "tsdf"):
             raise SceneError(f"PointCloudConfig.surface must be 'voxel-mean' or 'tsdf', got {self.surface!r}")
@@ -80,6 +88,8 @@ class PointCloudConfig:
             raise SceneError(
                 f"PointCloudConfig needs 0 <= min_depth < max_depth, got {self.min_depth}, {self.max_depth}"
             )
+        if self.surface_min_points < 1:
+            raise SceneError(f"PointCloudConfig.surface_min_points must be >= 1, got {self.surface_min_points}")
         if self.normal_knn < 3:
             raise SceneError(f"PointCloudConfig.normal_knn must be >= 3, got {self.normal_knn}")
 

@@ -346,20 +346,21 @@ def snap_raw_points(views, P, C, pix_list, offsets, strides, cfg):
     Returns the raw points ``P`` (P, 3) float32 moved onto the surface, with their colours ``C``
     (P, 3), pixels (``pix_list[v]``: flat pixel indices of view v) and ``offsets`` (V + 1,), less
     the points of voxels that fail the occupancy rule: a voxel of the moved points is kept when it
-    holds ``cfg.min_points`` of them or one trusted point (``SnappedPoints.trusted``), and never
-    when more views see through it than see a surface at it. Every kept point's voxel is then kept
-    by the fusion (``min_points`` 1 there).
+    holds ``cfg.surface_min_points`` of them or one trusted point (``SnappedPoints.trusted``).
+    Every kept point's voxel is then kept by the fusion (``min_points`` 1 there).
     """
     from clutt3r_core.pointcloud import _group_keys
 
-    params = SurfaceParams(voxel_size=cfg.voxel_size, min_points=cfg.min_points, min_depth=cfg.min_depth,
+    params = SurfaceParams(voxel_size=cfg.voxel_size, min_points=cfg.surface_min_points, min_depth=cfg.min_depth,
                            max_depth=cfg.max_depth)
+    if len(P) == 0:  # no depth at all: the fusion reports it
+        return P, C, pix_list, offsets
     sn = snap_to_surface(views, P, offsets, strides, params)
     keys, _, ext = _voxel_keys(sn.points, cfg.voxel_size)
     inverse, counts = _group_keys(keys, ext)
     del keys
     trusted = np.bincount(inverse[sn.trusted], minlength=len(counts)) > 0
-    keep = ((counts >= cfg.min_points) | trusted)[inverse]
+    keep = ((counts >= cfg.surface_min_points) | trusted)[inverse]
     if keep.all():
         return sn.points, C, pix_list, offsets
     pix_list = [pix[keep[offsets[v] : offsets[v + 1]]] for v, pix in enumerate(pix_list)]
