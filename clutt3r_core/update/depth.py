@@ -39,6 +39,7 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from clutt3r_core.normals import estimate_normals
 from clutt3r_core.scene import Camera
 from clutt3r_core.update.project import OCCLUSION_MARGIN, splat
 
@@ -210,14 +211,6 @@ def _kabsch_batch(A: np.ndarray, B: np.ndarray, w: np.ndarray) -> tuple[np.ndarr
     return R, t
 
 
-def _normals(model: np.ndarray, tree: cKDTree, k: int = 10) -> np.ndarray:
-    """(m, 3) unit normals of the model points: the least-variance direction of the k nearest."""
-    _, j = tree.query(model, k=min(k, len(model)))
-    nb = model[j] - model[j].mean(axis=1, keepdims=True)
-    _, V = np.linalg.eigh(np.einsum("mki,mkj->mij", nb, nb))
-    return V[:, :, 0]
-
-
 def _point_to_plane_batch(A: np.ndarray, B: np.ndarray, N: np.ndarray, w: np.ndarray):
     """One linearised point-to-plane step, batched: min sum w ((dR A + dt - B) . N)^2 over a small
     rotation vector and a translation; (S, n, 3) inputs -> (S, 3, 3), (S, 3)."""
@@ -267,7 +260,7 @@ def register(model: np.ndarray, scene: np.ndarray, camera: Camera, depth: np.nda
         colors = None if colors is None else np.asarray(colors)[keep_idx]
     cm, cs = model.mean(axis=0), scene.mean(axis=0)
     tree = cKDTree(model)
-    normals = _normals(model, tree)
+    normals = estimate_normals(model, 10)  # the fusion's PCA normals, 10 nearest
     # G maps scene -> model frame: G s = R (s - cs) + cm + t; the start rotation R = S^T
     # (the model turned by S matches the scene, so the scene turned back by S^T matches the model)
     R = np.ascontiguousarray(starts.transpose(0, 2, 1))

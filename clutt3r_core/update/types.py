@@ -4,7 +4,7 @@ Everything is a frozen dataclass of numpy arrays, checked on construction. Units
 metres, radians, seconds, pixels; poses follow docs/conventions.md (``T_world`` of an
 update is a world-frame motion: ``p_new = T_world @ p_old``, ``pose_new = T_world @ pose_old``).
 
-Over 500 lines because most of it is the configs' field documentation (unit, source and the
+Over 500 lines on purpose: most of it is the configs' field documentation (unit, source and the
 measured reason of every rule, one place to read them all); the code itself is small.
 """
 

@@ -1,6 +1,6 @@
 """Normals without Open3D (issue 13): the scipy/numpy estimate equals Open3D's ``estimate_normals``.
 
-``pointcloud._estimate_normals`` replaced Open3D's KNN PCA normals so that the segmentation
+``normals.estimate_normals`` (``pointcloud``'s) replaced Open3D's KNN PCA normals so that the segmentation
 core never imports open3d (0.9 s of package init per process). These tests pin that the
 two estimates agree on noisy generated surfaces and on a fused cloud, and that the closed-form
 3x3 eigenvector equals LAPACK's, degenerate matrices included.
@@ -13,7 +13,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from clutt3r_core.pointcloud import _estimate_normals, _smallest_eigvec, fuse_views
+from clutt3r_core.normals import estimate_normals as _estimate_normals
+from clutt3r_core.normals import smallest_eigvec as _smallest_eigvec
+from clutt3r_core.pointcloud import fuse_views
 
 from ._geometry_scenes import make_views
 
@@ -140,7 +142,7 @@ def test_normals_and_neighbours_do_not_depend_on_the_block_size(monkeypatch):
     """Issue 13: the estimate runs in blocks of rows (memory at 1080p); each row's normal and
     neighbour list must be the same bits whatever block it falls in, and the table is the
     k-NN query's (the super-voxel graph reuses it)."""
-    import clutt3r_core.pointcloud as pc
+    import clutt3r_core.normals as pc
     from scipy.spatial import cKDTree
 
     pts = _noisy_surfaces(seed=5)

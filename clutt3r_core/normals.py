@@ -1,0 +1,105 @@
+"""Unoriented PCA normals of a point cloud (the fusion's, Sec. III-A, and the update's ICP models).
+
+Split out of ``pointcloud`` so that every caller shares one estimate (the update's point-to-plane
+registration had its own k-NN + ``eigh`` copy).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["estimate_normals", "smallest_eigvec"]
+
+# Points per block of the normal estimation: bounds the (block, knn) neighbour
+# offsets, distances and indices (about 5 x 20 x 4 Ki x 8 B = 3 MiB); measured on
+# sample_seq4 the stage's traced peak is 27 MiB with 4 Ki blocks and 43 MiB with 16 Ki
+# ones, at the same speed (issue 13, 1080p memory). Each row's result is independent of
+# the block it falls in (the same bits, tests/core/test_normals.py).
+_NORMAL_BLOCK = 1 << 12
+
+
+def estimate_normals(points: np.ndarray, knn: int, *, neighbours: bool = False):
+    """(N, 3) float64 unit PCA normals, unoriented: the eigenvector of the smallest
+    eigenvalue of the covariance of each point's ``knn`` nearest points (itself included).
+    With ``neighbours=True``, returns (normals, (N, min(knn, N)) int32 neighbour indices
+    as cKDTree gives them, nearest first; None for fewer than 3 points).
+
+    The same estimate as Open3D's ``PointCloud.estimate_normals(KDTreeSearchParamKNN(knn))``,
+    which this replaced (issue 13): ``import open3d`` costs about 0.9 s per process
+    because its package init loads its plotly/dash visualisation, and normals were the
+    only thing the segmentation core used it for. Measured against Open3D 0.20 on a hard
+    generated scene (157 k voxels) and on sample_seq4 the two differ by at most a few
+    micro-degrees (tests/core/test_normals.py). Neighbours come from scipy's cKDTree; the
+    eigenvector is the closed form for a symmetric 3x3 matrix (``smallest_eigvec``).
+    """
+    n = points.shape[0]
+    if n < 3:
+        nrm = np.tile([0.0, 0.0, 1.0], (n, 1))
+        return (nrm, None) if neighbours else nrm
+    from scipy.spatial import cKDTree
+
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    k = min(knn, n)
+    tree = cKDTree(pts)
+    cols = [np.ascontiguousarray(pts[:, a]) for a in range(3)]
+    nrm = np.empty((n, 3))
+    table = np.empty((n, k), np.int32) if neighbours else None
+    for s in range(0, n, _NORMAL_BLOCK):
+        q = pts[s : s + _NORMAL_BLOCK]
+        _, idx = tree.query(q, k=k, workers=-1)
+        idx = idx.reshape(len(q), k)
+        if table is not None:
+            table[s : s + len(q)] = idx
+        # offsets from the query point: the covariance is translation-free, and centring
+        # on a nearby point keeps the sums small (no cancellation at metres from the origin)
+        d = [c[idx] - q[:, a, None] for a, c in enumerate(cols)]
+        m = [x.mean(axis=1) for x in d]
+        cov = np.empty((len(q), 6))
+        for j, (a, b) in enumerate(((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))):
+            cov[:, j] = np.einsum("ij,ij->i", d[a], d[b]) / k - m[a] * m[b]
+        nrm[s : s + len(q)] = smallest_eigvec(cov)
+    bad = ~np.isfinite(nrm).all(axis=1) | (np.linalg.norm(nrm, axis=1) < 0.5)
+    nrm[bad] = (0.0, 0.0, 1.0)  # degenerate neighbourhoods (coincident voxels); oriented later
+    return (nrm, table) if neighbours else nrm
+
+
+def smallest_eigvec(c6: np.ndarray) -> np.ndarray:
+    """(M, 3) unit eigenvector of the smallest eigenvalue of each symmetric 3x3 matrix
+    given as (M, 6) [a00, a11, a22, a01, a02, a12].
+
+    Closed form (about 4x cheaper than batched ``np.linalg.eigh``): the smallest
+    eigenvalue by the trigonometric solution of the characteristic cubic, then the null
+    vector of A - lambda I as the largest cross product of two of its rows. Rows where
+    that is not well defined (a repeated smallest eigenvalue: collinear or coincident
+    neighbours, where every cross product vanishes) fall back to ``np.linalg.eigh``.
+    """
+    scale = np.abs(c6).max(axis=1)
+    scale[scale == 0] = 1.0
+    a00, a11, a22, a01, a02, a12 = (c6 / scale[:, None]).T
+    q = (a00 + a11 + a22) / 3.0
+    b00, b11, b22 = a00 - q, a11 - q, a22 - q
+    p = np.sqrt((b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * (a01 * a01 + a02 * a02 + a12 * a12)) / 6.0)
+    pinv = np.divide(1.0, p, out=np.zeros_like(p), where=p > 0)
+    c00, c11, c22, c01, c02, c12 = (x * pinv for x in (b00, b11, b22, a01, a02, a12))
+    det = c00 * (c11 * c22 - c12 * c12) - c01 * (c01 * c22 - c12 * c02) + c02 * (c01 * c12 - c11 * c02)
+    lam = q + 2.0 * p * np.cos(np.arccos(np.clip(det / 2.0, -1.0, 1.0)) / 3.0 + 2.0 * np.pi / 3.0)
+    r0 = np.stack([a00 - lam, a01, a02], axis=1)
+    r1 = np.stack([a01, a11 - lam, a12], axis=1)
+    r2 = np.stack([a02, a12, a22 - lam], axis=1)
+    cands = (np.cross(r0, r1), np.cross(r0, r2), np.cross(r1, r2))
+    sq = np.stack([np.einsum("ij,ij->i", v, v) for v in cands], axis=1)
+    best = sq.argmax(axis=1)
+    rows = np.arange(len(best))
+    out = np.choose(best[:, None], cands) / np.sqrt(np.maximum(sq[rows, best], 1e-300))[:, None]
+    # |cross|^2 of two unit-scale rows: ~1e-4 and up for a plane of voxels; tiny when the
+    # null space is 2-D (or 3-D), where the cross products are round-off
+    weak = sq[rows, best] < 1e-10
+    if weak.any():
+        w = np.flatnonzero(weak)
+        A = np.empty((len(w), 3, 3))
+        A[:, 0, 0], A[:, 1, 1], A[:, 2, 2] = a00[w], a11[w], a22[w]
+        A[:, 0, 1] = A[:, 1, 0] = a01[w]
+        A[:, 0, 2] = A[:, 2, 0] = a02[w]
+        A[:, 1, 2] = A[:, 2, 1] = a12[w]
+        out[w] = np.linalg.eigh(A)[1][:, :, 0]
+    return out
