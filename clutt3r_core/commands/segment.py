@@ -20,7 +20,7 @@ def segment_command(
     scene: Positional[Path],
     out: Path,
     config: SegmentConfig = SegmentConfig(),
-    preset: Literal["", "default", "paper", "no-spatial", "no-substitution"] = "",
+    preset: Literal["", "default", "paper", "no-spatial", "no-substitution", "noisy-depth"] = "",
     mask_options: Annotated[MaskOptions, tyro.conf.arg(name="")] = MaskOptions(),
 ) -> None:
     """Segment a scene folder (sample layout or BOP) and write the run to OUT.
@@ -29,7 +29,8 @@ def segment_command(
         scene: scene folder (transforms.json or scene_camera.json inside).
         out: run folder to write (instances.npz, instances.ply, instance_tree.json, trace/).
         config: every stage's settings (paper defaults, Sec. IV).
-        preset: if set, one of default / paper / no-spatial / no-substitution; replaces --config.
+        preset: if set, one of default / paper / no-spatial / no-substitution / noisy-depth (ours with
+            the multi-view surface estimate, for consumer depth cameras); replaces --config.
         mask_options: where the mask candidates come from (--masks auto|builtin|import|sam-onnx);
             generated ones are written to OUT/instance_masks/ and named in OUT/run.json.
     """

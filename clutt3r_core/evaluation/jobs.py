@@ -35,8 +35,8 @@ __all__ = [
     "synth_version",
 ]
 
-Method = Literal["ours", "paper", "no-spatial", "no-substitution", "naive", "maskclustering"]
-METHODS: tuple[str, ...] = ("ours", "paper", "no-spatial", "no-substitution", "naive", "maskclustering")
+Method = Literal["ours", "paper", "no-spatial", "no-substitution", "ours-noisy-depth", "naive", "maskclustering"]
+METHODS: tuple[str, ...] = ("ours", "paper", "no-spatial", "no-substitution", "ours-noisy-depth", "naive", "maskclustering")
 DIFFICULTIES: tuple[str, ...] = ("easy", "intermediate", "hard")
 MASK_NOISES: tuple[str, ...] = ("clean", "grounded-sam-like", "harsh")
 DEPTH_NOISES: tuple[str, ...] = ("realsense", "none")

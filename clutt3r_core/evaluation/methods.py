@@ -17,7 +17,8 @@ from clutt3r_core.scene import Scene
 
 __all__ = ["BenchMethod", "make_method", "PRESET_OF", "ABLATION_METHODS", "method_config"]
 
-PRESET_OF = {"ours": "default", "paper": "paper", "no-spatial": "no-spatial", "no-substitution": "no-substitution"}
+PRESET_OF = {"ours": "default", "paper": "paper", "no-spatial": "no-spatial", "no-substitution": "no-substitution",
+             "ours-noisy-depth": "noisy-depth"}
 """Benchmark method name -> segmentation preset."""
 
 

@@ -28,10 +28,11 @@ _NAMES = {
     "paper": "Clutt3R, paper's text (additions off)",
     "no-spatial": "w/o S_spatial",
     "no-substitution": "w/o substitution",
+    "ours-noisy-depth": "Clutt3R, noisy-depth preset",
     "naive": "Naive 3D-IoU merging",
     "maskclustering": "MaskClustering (re-impl.)",
 }
-_ORDER = ("naive", "maskclustering", "paper", "no-spatial", "no-substitution", "ours")
+_ORDER = ("naive", "maskclustering", "paper", "no-spatial", "no-substitution", "ours", "ours-noisy-depth")
 _DIFF = ("easy", "intermediate", "hard")
 
 

@@ -174,3 +174,14 @@ def test_views_without_any_depth_give_an_empty_cloud():
     """As the plain fusion: no raw point, no voxel (the pipeline's depth check then names the views)."""
     views = [dataclasses.replace(v, depth=np.full_like(v.depth, np.nan)) for v in make_views(2)]
     assert fuse_views(views, TSDF).num == 0 == fuse_views(views).num
+
+
+def test_the_noisy_depth_preset_is_ours_with_the_surface_estimate():
+    """`--preset noisy-depth` (segment) and the bench method `ours-noisy-depth` are ours with only the
+    fusion switched, so a comparison between them measures the surface estimate alone."""
+    from clutt3r_core.evaluation.methods import method_config
+
+    nd = PRESETS["noisy-depth"]
+    assert nd.pointcloud.surface == "tsdf"
+    assert dataclasses.replace(nd, pointcloud=dataclasses.replace(nd.pointcloud, surface="voxel-mean")) == SegmentConfig()
+    assert method_config("ours-noisy-depth") == nd
