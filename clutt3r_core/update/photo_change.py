@@ -139,12 +139,7 @@ def photo_check(points: np.ndarray, colors: np.ndarray, instance: np.ndarray, id
     pred = np.clip(old * gain, 0.0, 255.0)  # the camera saturates as the prediction must
     # the best match within +-search_px pixels: a calibration or reconstruction error of a
     # pixel moves texture edges by a pixel (measured on sample_seq1)
-    H, W = rgb.shape[:2]
-    best = np.full(len(pred), np.inf)
-    for dv in range(-search_px, search_px + 1):
-        for du in range(-search_px, search_px + 1):
-            n2 = rgb[np.clip(vv + dv, 0, H - 1), np.clip(uu + du, 0, W - 1)].astype(np.float64)
-            best = np.minimum(best, np.abs(n2 - pred).mean(axis=1))
+    best = _best_match(rgb, vv, uu, pred, search_px)
     sigma = float(1.4826 * np.median(best[ref]))  # |N(0, s)| has median 0.674 s
     tol = max(float(tol_min), tol_sigma * sigma)
     ok = best <= tol
@@ -181,6 +176,18 @@ def photo_check(points: np.ndarray, colors: np.ndarray, instance: np.ndarray, id
                       gain.astype(np.float64), float(tol), sigma)
 
 
+def _best_match(rgb: np.ndarray, vv: np.ndarray, uu: np.ndarray, pred: np.ndarray, search_px: int) -> np.ndarray:
+    """(M,) mean absolute colour difference between ``pred`` (M, 3) and the best of the image's
+    pixels within +-``search_px`` of (vv, uu)."""
+    H, W = rgb.shape[:2]
+    best = np.full(len(pred), np.inf)
+    for dv in range(-search_px, search_px + 1):
+        for du in range(-search_px, search_px + 1):
+            n2 = rgb[np.clip(vv + dv, 0, H - 1), np.clip(uu + du, 0, W - 1)].astype(np.float64)
+            best = np.minimum(best, np.abs(n2 - pred).mean(axis=1))
+    return best
+
+
 def photo_at_pose(points: np.ndarray, colors: np.ndarray, T: np.ndarray, camera: Camera, rgb: np.ndarray,
                   voxel: float, occluder_depth: np.ndarray | None, gain: np.ndarray, tol: float,
                   search_px: int = 1) -> tuple[int, float]:
@@ -204,10 +211,5 @@ def photo_at_pose(points: np.ndarray, colors: np.ndarray, T: np.ndarray, camera:
         return 0, float("nan")
     vv, uu = s.v0 + c // s.w, s.u0 + c % s.w
     pred = np.clip(np.asarray(colors, np.float64)[win] * gain, 0.0, 255.0)
-    H, W = rgb.shape[:2]
-    best = np.full(len(pred), np.inf)
-    for dv in range(-search_px, search_px + 1):
-        for du in range(-search_px, search_px + 1):
-            n2 = rgb[np.clip(vv + dv, 0, H - 1), np.clip(uu + du, 0, W - 1)].astype(np.float64)
-            best = np.minimum(best, np.abs(n2 - pred).mean(axis=1))
+    best = _best_match(rgb, vv, uu, pred, search_px)
     return len(c), float(np.mean(best <= tol))
