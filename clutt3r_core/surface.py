@@ -235,16 +235,16 @@ def snap_to_surface(
     # 1 / |cos| of the euclidean one, so where the set of views that see a voxel changes (occlusion
     # edges, the border of a view) the mean of s_j jumps and tilts its gradient; -n . mean(s_j r_j)
     # (r_j the unit ray of view j) does not, for any set of views
-    def euclid(Dx, Vx, nx, gx):
+    def euclid(Vx, nx, gx):
         nrm = np.sqrt((gx * gx).sum(axis=0))
         return np.where((nx > 0) & (nrm > 0), -(gx * Vx).sum(axis=0) / np.maximum(nrm, 1e-12) / np.maximum(nx, 1), 0.0)
 
-    E = euclid(D, V, nnear, g)
+    E = euclid(V, nnear, g)
     nbrs_e = []
     for hits, lone, extra in nbrs:
         if extra is not None:
-            De, Ve, ne = extra
-            extra = (euclid(De, Ve, ne, g[:, lone]), Ve, ne)
+            _, Ve, ne = extra
+            extra = (euclid(Ve, ne, g[:, lone]), Ve, ne)
         nbrs_e.append((hits, lone, extra))
     g = _gradient(E, nbrs_e, vs)
     D = E
@@ -278,8 +278,8 @@ def _distance_field(sampled, pts: np.ndarray, origin: np.ndarray, params: Surfac
     """Mean projective signed distance of the views at points (M, 3) float32 (world = origin + pts).
 
     ``sampled``: per view (camera, stride, ``_SmoothedDepth`` of its sampled grid). Returns
-    (D (M,) float64, views within +-truncation (M,) int32, views that see more than truncation
-    behind the point (M,) int32); D = 0 where no view is within the truncation."""
+    (D (M,) float64; V (3, M) float64, the sum over those views of s_j times the unit ray of view j;
+    the views within +-truncation (M,) int32); D = 0 where no view is within the truncation."""
     m = len(pts)
     T = float(params.truncation)
     ssum = np.zeros(m)
