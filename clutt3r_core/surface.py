@@ -174,14 +174,13 @@ def smooth_depth(z: np.ndarray, size: int, edge_std: float) -> np.ndarray:
 def snap_to_surface(
     views: Sequence[View],
     points: np.ndarray,
-    offsets: np.ndarray,
     strides: Sequence[int],
     params: SurfaceParams = SurfaceParams(),
 ) -> SnappedPoints:
     """Move the raw points of ``views`` onto their multi-view surface (module docstring).
 
-    points: (P, 3) float32 world metres, the back-projected pixels of all views concatenated;
-    offsets: (V + 1,) the points of view v are ``points[offsets[v]:offsets[v + 1]]``;
+    points: (P, 3) float32 world metres, the back-projected pixels of all views concatenated
+    (which view a point came from does not matter: every view is read at every voxel);
     strides: the pixel stride each view was sampled with.
     """
     from clutt3r_core.pointcloud import _group_keys
@@ -355,7 +354,7 @@ def snap_raw_points(views, P, C, pix_list, offsets, strides, cfg):
                            max_depth=cfg.max_depth)
     if len(P) == 0:  # no depth at all: the fusion reports it
         return P, C, pix_list, offsets
-    sn = snap_to_surface(views, P, offsets, strides, params)
+    sn = snap_to_surface(views, P, strides, params)
     keys, _, ext = _voxel_keys(sn.points, cfg.voxel_size)
     inverse, counts = _group_keys(keys, ext)
     del keys

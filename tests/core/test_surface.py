@@ -127,13 +127,8 @@ def test_a_clean_plane_is_a_fixed_point(tilt, azim, height, seed):
         t = (height * n[2] - eye @ n) / (rays @ n)
         depth = np.where(t > 0, t, np.nan).astype(np.float32)
         views.append(View(frame=i, rgb=np.zeros((60, 80, 3), np.uint8), camera=cam, depth=depth))
-    P, offsets = [], [0]
-    for v in views:
-        p, _ = v.camera.backproject(v.depth)
-        P.append(p.astype(np.float32))
-        offsets.append(offsets[-1] + len(p))
-    P = np.concatenate(P)
-    sn = snap_to_surface(views, P, np.asarray(offsets), [1, 1, 1])
+    P = np.concatenate([v.camera.backproject(v.depth)[0].astype(np.float32) for v in views])
+    sn = snap_to_surface(views, P, [1, 1, 1])
     dist = np.abs((sn.points.astype(np.float64) - (0.0, 0.0, height)) @ n)
     assert sn.moved.mean() > 0.8
     assert np.median(dist) < 1e-4, np.percentile(dist, [50, 90, 100])
