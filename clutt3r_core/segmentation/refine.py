@@ -20,14 +20,14 @@ masks cover its own super-voxels more than the neighbour's masks do), so it is n
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
 
 from clutt3r_core.errors import SceneError
 from clutt3r_core.segmentation.grouping import GroupingResult, MergeStep
-from clutt3r_core.segmentation.vote import VoteResult
+from clutt3r_core.segmentation.vote import VoteResult, renumber_by_score
 
 __all__ = ["RefineConfig", "won_fractions", "absorb_fragments", "ABSORB_STAGE", "weak_echoes"]
 
@@ -154,8 +154,6 @@ def absorb_fragments(
         vote = revote(tuple(groups))
     if len(merges) == len(grouping.merges):
         return grouping, vote
-    from dataclasses import replace
-
     return (replace(grouping, groups=tuple(groups), merges=tuple(merges), events=tuple(events)),
             _keep_scores(vote, tuple(groups), kept_score))
 
@@ -169,13 +167,7 @@ def _keep_scores(vote: VoteResult, groups: tuple[tuple[int, ...], ...], kept: di
     Instances are renumbered by descending confidence as the vote numbers them (ties: lower id).
     """
     scores = np.array([kept.get(groups[int(g)], float(s)) for g, s in zip(vote.instance_group, vote.scores)], np.float32)
-    order = np.lexsort((np.arange(len(scores)), -scores))
-    new_id = np.empty(len(order), np.int32)
-    new_id[order] = np.arange(len(order), dtype=np.int32)
-    lab = vote.sv_label
-    sv_label = np.where(lab >= 0, new_id[np.maximum(lab, 0)] if len(order) else -1, -1).astype(np.int32)
-    from dataclasses import replace
-
+    sv_label, order = renumber_by_score(vote.sv_label, scores, np.ones(len(scores), bool))
     return replace(vote, sv_label=sv_label, instance_group=vote.instance_group[order], scores=scores[order])
 
 
