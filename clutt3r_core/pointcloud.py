@@ -314,6 +314,30 @@ def _compact(lin: np.ndarray, ncells: int) -> tuple[np.ndarray, int]:
     return lut[lin], len(occupied)
 
 
+def _voxel_keys(P: np.ndarray, voxel_size: float, pad: int = 0) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
+    """Integer voxel keys of (P, 3) float32 points (P > 0): three (P,) int32 columns, the lowest
+    occupied voxel at ``pad`` (``pad`` empty layers below, so every neighbour key is >= 0), the
+    lower corner (3,) float in voxels (key 0) and the extent (3,) int64 with ``pad`` empty layers
+    above. ``SceneError`` when the points span too many voxels to index."""
+    # One contiguous column at a time: reductions along axis 0 of a (P, 3) array are slow.
+    inv_size = np.float32(1.0 / voxel_size)
+    keys, lows = [], []
+    for a in range(3):
+        k = np.floor(P[:, a] * inv_size)  # float32; exact integers below 2^24
+        lo, hi = float(k.min()), float(k.max())
+        if hi - lo >= 2**24:  # 84 km at 5 mm: no tabletop; also keeps the keys exact int32
+            raise SceneError(f"fused scene spans {hi - lo + 1:.0f} voxels along axis {a}, too large to "
+                             "index (check depth and poses)")
+        k -= np.float32(lo - pad)
+        keys.append(k.astype(np.int32))
+        lows.append(lo - pad)
+        del k
+    ext = np.array([int(k.max()) + 1 + pad for k in keys], dtype=np.int64)
+    if float(np.prod(ext.astype(np.float64))) >= 2.0**62:
+        raise SceneError(f"fused scene spans {ext.tolist()} voxels, too large to index (check depth and poses)")
+    return keys, np.asarray(lows), ext
+
+
 def _group_keys(keys: list[np.ndarray], ext: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Group integer voxel keys (three (P,) int32 columns in 0..ext-1).
 
@@ -373,21 +397,7 @@ def fuse_views(views: Sequence[View], cfg: PointCloudConfig = PointCloudConfig()
 
     # Integer voxel keys packed into one int64, then grouped.
     if len(P):
-        # One contiguous column at a time: reductions along axis 0 of a (P, 3) array are slow.
-        inv_size = np.float32(1.0 / cfg.voxel_size)
-        keys = []
-        for a in range(3):
-            k = np.floor(P[:, a] * inv_size)  # float32; exact integers below 2^24
-            lo, hi = float(k.min()), float(k.max())
-            if hi - lo >= 2**24:  # 84 km at 5 mm: no tabletop; also keeps the keys exact int32
-                raise SceneError(f"fused scene spans {hi - lo + 1:.0f} voxels along axis {a}, too large to "
-                                 "index (check depth and poses)")
-            k -= np.float32(lo)
-            keys.append(k.astype(np.int32))
-            del k
-        ext = np.array([int(k.max()) + 1 for k in keys], dtype=np.int64)
-        if float(np.prod(ext.astype(np.float64))) >= 2.0**62:
-            raise SceneError(f"fused scene spans {ext.tolist()} voxels, too large to index (check depth and poses)")
+        keys, _, ext = _voxel_keys(P, cfg.voxel_size)
         inverse, counts = _group_keys(keys, ext)
         del keys
     else:

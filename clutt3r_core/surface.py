@@ -183,14 +183,14 @@ def snap_to_surface(
     (which view a point came from does not matter: every view is read at every voxel);
     strides: the pixel stride each view was sampled with.
     """
-    from clutt3r_core.pointcloud import _group_keys
+    from clutt3r_core.pointcloud import _group_keys, _voxel_keys
 
     P = np.asarray(points, np.float32)
     n = len(P)
     if n == 0:
         return SnappedPoints(P.copy(), np.zeros(0, bool), np.zeros(0, bool))
     vs = float(params.voxel_size)
-    keys, lo, ext = _voxel_keys(P, vs)
+    keys, lo, ext = _voxel_keys(P, vs, pad=1)  # an empty layer each side: every 6-neighbour key is valid
     inverse, counts = _group_keys(keys, ext)
     u = int(inverse.max()) + 1
     ukeys = np.empty((3, u), np.int64)
@@ -324,21 +324,6 @@ def _gradient(D: np.ndarray, nbrs, vs: float) -> np.ndarray:
     return g
 
 
-def _voxel_keys(P: np.ndarray, vs: float) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
-    """Integer voxel keys of (P, 3) float32 points as three (P,) int32 columns with one empty layer
-    below (every neighbour key >= 0), the lower corner (3,) in voxels and the extent (3,) int64
-    with one empty layer above."""
-    inv_size = np.float32(1.0 / vs)
-    keys, lo = [], []
-    for a in range(3):
-        k = np.floor(P[:, a] * inv_size)
-        low = float(k.min()) - 1.0
-        k -= np.float32(low)
-        keys.append(k.astype(np.int32))
-        lo.append(low)
-    return keys, np.asarray(lo), np.array([int(k.max()) + 2 for k in keys], dtype=np.int64)
-
-
 def snap_raw_points(views, P, C, pix_list, offsets, strides, cfg):
     """The fusion's hook (``pointcloud.fuse_views`` with ``surface="tsdf"``).
 
@@ -348,14 +333,14 @@ def snap_raw_points(views, P, C, pix_list, offsets, strides, cfg):
     holds ``cfg.surface_min_points`` of them or one trusted point (``SnappedPoints.trusted``).
     Every kept point's voxel is then kept by the fusion (``min_points`` 1 there).
     """
-    from clutt3r_core.pointcloud import _group_keys
+    from clutt3r_core.pointcloud import _group_keys, _voxel_keys
 
     params = SurfaceParams(voxel_size=cfg.voxel_size, min_points=cfg.surface_min_points, min_depth=cfg.min_depth,
                            max_depth=cfg.max_depth)
     if len(P) == 0:  # no depth at all: the fusion reports it
         return P, C, pix_list, offsets
     sn = snap_to_surface(views, P, strides, params)
-    keys, _, ext = _voxel_keys(sn.points, cfg.voxel_size)
+    keys, _, ext = _voxel_keys(sn.points, cfg.voxel_size, pad=1)
     inverse, counts = _group_keys(keys, ext)
     del keys
     trusted = np.bincount(inverse[sn.trusted], minlength=len(counts)) > 0

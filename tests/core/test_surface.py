@@ -180,3 +180,16 @@ def test_the_noisy_depth_preset_is_ours_with_the_surface_estimate():
     assert nd.pointcloud.surface == "tsdf"
     assert dataclasses.replace(nd, pointcloud=dataclasses.replace(nd.pointcloud, surface="voxel-mean")) == SegmentConfig()
     assert method_config("ours-noisy-depth") == nd
+
+
+@pytest.mark.parametrize("surface", ["voxel-mean", "tsdf"])
+def test_a_scene_too_large_to_index_is_refused_by_both_fusions(surface):
+    """Poses 100 km apart (a unit mix-up): one clear SceneError, from the shared voxel keys,
+    before the surface estimate does any work on a grid it cannot index."""
+    views = make_views(2, 80, 60, 100.0)
+    T = views[1].camera.T_world_camera.copy()
+    T[0, 3] += 1e5
+    cam = views[1].camera
+    views[1] = dataclasses.replace(views[1], camera=Camera(cam.K, cam.width, cam.height, T))
+    with pytest.raises(SceneError, match="too large to index"):
+        fuse_views(views, PointCloudConfig(surface=surface))
