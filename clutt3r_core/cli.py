@@ -128,10 +128,8 @@ def _one_blas_thread() -> None:
     if any(v in os.environ for v in BLAS_THREAD_VARIABLES):
         return
     os.environ["OPENBLAS_NUM_THREADS"] = "1"
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # a plain dependency; without it only numpy's BLAS keeps its threads
-        return
+    from threadpoolctl import threadpool_limits  # a core dependency (pyproject.toml), like pipeline.segment's
+
     threadpool_limits(1, user_api="blas")
 
 
