@@ -132,7 +132,7 @@ class TourPanel(Panel):
         self.next.on_click(lambda ev: self.go(s, self.step + 1))
         self.explore.on_click(lambda ev: self.leave(s))
         self.resume.on_click(lambda ev: self.go(s, self.step))
-        self.download.on_click(lambda ev: self.send_html(s))
+        self.download.on_click(lambda ev: send_html(s))
         # the other panels are built after this one (PANELS order): apply step 1 once they are
         threading.Thread(target=self._first_step, args=(s,), daemon=True).start()
 
@@ -187,9 +187,6 @@ class TourPanel(Panel):
         self.next.disabled = self.exploring or self.step == len(STEPS) - 1
         self.explore.visible = not self.exploring
         self.resume.visible = self.exploring
-
-    def send_html(self, s: "Session") -> None:
-        send_html(s)
 
     # -- one step --------------------------------------------------------------------------
 
