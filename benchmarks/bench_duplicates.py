@@ -34,10 +34,11 @@ def with_copies(scene, p: float, seed: int):
     from clutt3r_core.scene import MaskCandidates, Scene
 
     rng = np.random.default_rng(seed)
+    initial = {scene.views[i].frame for i in scene.initial}
     views, n = [], 0
     for v in scene.views:
         m = v.masks
-        if m is None or not len(m) or v.frame not in {scene.views[i].frame for i in scene.initial}:
+        if m is None or not len(m) or v.frame not in initial:
             views.append(v)
             continue
         h, w = m.shape
