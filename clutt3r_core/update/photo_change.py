@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from clutt3r_core.scene import Camera
-from clutt3r_core.update.project import OCCLUSION_MARGIN, splat
+from clutt3r_core.update.project import Splats, splat
 
 __all__ = ["PhotoCheck", "photo_check"]
 
@@ -116,19 +116,10 @@ def photo_check(points: np.ndarray, colors: np.ndarray, instance: np.ndarray, id
     K = len(ids)
     zeros = np.zeros(K, np.int64)
     s = splat(pts, camera, voxel)
-    vis = np.zeros(len(pts), bool)
-    if s.h and s.w:
-        inside = s.centre >= 0
-        zb = s.zbuf.reshape(-1)[np.maximum(s.centre, 0)]
-        vis = inside & (s.z <= zb + OCCLUSION_MARGIN)
+    vis = s.visible()
     if not vis.any():
         return PhotoCheck(ids, zeros, zeros.copy(), zeros.copy(), np.ones(3), float(tol_min), 0.0)
-    # the centre pixels of the visible points, once each, with the colour and label of the
-    # point that wins them (a point next to a face edge can lose its centre to the other face)
-    c = np.unique(s.centre[vis])
-    win = s.point.reshape(-1)[c]
-    c, win = c[win >= 0], win[win >= 0]
-    vv, uu = s.v0 + c // s.w, s.u0 + c % s.w
+    vv, uu, win = _centre_pixels(s, vis)
     old = col[win]
     lab_v = lab[win]
     ref = lab_v < 0
@@ -176,6 +167,16 @@ def photo_check(points: np.ndarray, colors: np.ndarray, instance: np.ndarray, id
                       gain.astype(np.float64), float(tol), sigma)
 
 
+def _centre_pixels(s: Splats, vis: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(rows, columns, winning point) of the centre pixels of the ``vis`` points, once each,
+    each with the point that wins it in the z-buffer (a point next to a face edge can lose its
+    centre to the other face)."""
+    c = np.unique(s.centre[vis])
+    win = s.point.reshape(-1)[c]
+    c, win = c[win >= 0], win[win >= 0]
+    return s.v0 + c // s.w, s.u0 + c % s.w, win
+
+
 def _best_match(rgb: np.ndarray, vv: np.ndarray, uu: np.ndarray, pred: np.ndarray, search_px: int) -> np.ndarray:
     """(M,) mean absolute colour difference between ``pred`` (M, 3) and the best of the image's
     pixels within +-``search_px`` of (vv, uu)."""
@@ -197,19 +198,9 @@ def photo_at_pose(points: np.ndarray, colors: np.ndarray, T: np.ndarray, camera:
     the new place is not known to the stored cloud.)"""
     p = np.asarray(points, np.float64) @ T[:3, :3].T + T[:3, 3]
     s = splat(p, camera, voxel)
-    if not (s.h and s.w):
+    vv, uu, win = _centre_pixels(s, s.visible(occluder_depth))
+    if not len(win):
         return 0, float("nan")
-    inside = s.centre >= 0
-    cf = np.maximum(s.centre, 0)
-    vis = inside & (s.z <= s.zbuf.reshape(-1)[cf] + OCCLUSION_MARGIN)
-    if occluder_depth is not None:
-        vis &= s.z <= s.crop(occluder_depth).reshape(-1)[cf] + OCCLUSION_MARGIN
-    c = np.unique(s.centre[vis])
-    win = s.point.reshape(-1)[c]
-    c, win = c[win >= 0], win[win >= 0]
-    if not len(c):
-        return 0, float("nan")
-    vv, uu = s.v0 + c // s.w, s.u0 + c % s.w
     pred = np.clip(np.asarray(colors, np.float64)[win] * gain, 0.0, 255.0)
     best = _best_match(rgb, vv, uu, pred, search_px)
-    return len(c), float(np.mean(best <= tol))
+    return len(win), float(np.mean(best <= tol))

@@ -65,6 +65,25 @@ class Splats:
         """The window of a full (H, W, ...) image."""
         return image[self.v0 : self.v0 + self.h, self.u0 : self.u0 + self.w]
 
+    def visible(self, occluder_depth: np.ndarray | None = None, margin: float = OCCLUSION_MARGIN) -> np.ndarray:
+        """(N,) bool: points whose centre pixel is in the window and that are not behind the
+        z-buffer (nor a full (H, W) ``occluder_depth``, camera z) by more than ``margin`` metres."""
+        if not (self.h and self.w):
+            return np.zeros(len(self.centre), bool)
+        cf = np.maximum(self.centre, 0)
+        vis = (self.centre >= 0) & (self.z <= self.zbuf.reshape(-1)[cf] + margin)
+        if occluder_depth is not None:
+            vis &= self.z <= self.crop(occluder_depth).reshape(-1)[cf] + margin
+        return vis
+
+    def silhouette(self, occluder_depth: np.ndarray | None = None, margin: float = OCCLUSION_MARGIN) -> np.ndarray:
+        """(h, w) bool window pixels covered by a splat whose nearest point is not behind a full
+        (H, W) ``occluder_depth`` (camera z) by more than ``margin`` metres."""
+        local = np.isfinite(self.zbuf)
+        if occluder_depth is not None and self.h and self.w:
+            local &= self.zbuf <= self.crop(occluder_depth) + margin
+        return local
+
     def paste(self, local: np.ndarray, full_shape: tuple[int, int], fill) -> np.ndarray:
         out = np.full(full_shape, fill, dtype=local.dtype)
         out[self.v0 : self.v0 + self.h, self.u0 : self.u0 + self.w] = local
@@ -142,10 +161,7 @@ def silhouette(
     ``occluder_depth`` (camera z of other objects, inf = none) by more than ``margin`` metres.
     (If the nearest point of a pixel is hidden, every point of that pixel is.)"""
     s = splat(points, camera, voxel, scale)
-    local = np.isfinite(s.zbuf)
-    if occluder_depth is not None and s.h and s.w:
-        local &= s.zbuf <= s.crop(occluder_depth) + margin
-    return s.paste(local, (camera.height, camera.width), False)
+    return s.paste(s.silhouette(occluder_depth, margin), (camera.height, camera.width), False)
 
 
 def mask_iou(a: np.ndarray, b: np.ndarray) -> float:
