@@ -41,7 +41,7 @@ from scipy.spatial.transform import Rotation
 
 from clutt3r_core.normals import estimate_normals
 from clutt3r_core.scene import Camera
-from clutt3r_core.update.project import OCCLUSION_MARGIN, splat
+from clutt3r_core.update.project import splat
 
 __all__ = ["PlaceCheck", "place_check", "explained_pixels", "mask_points", "Registration", "register",
            "start_rotations"]
@@ -102,9 +102,7 @@ def place_check(points: np.ndarray, instance: np.ndarray, ids: np.ndarray, camer
     agree, farther, nearer, visible = (np.zeros(K, np.int64) for _ in range(4))
     if not (s.h and s.w):
         return PlaceCheck(ids, agree, farther, nearer, visible)
-    inside = s.centre >= 0
-    zb = s.zbuf.reshape(-1)[np.maximum(s.centre, 0)]
-    vis = inside & (s.z <= zb + OCCLUSION_MARGIN)
+    vis = s.visible()
     uv, _ = camera.project(pts)
     d = _depth_at(depth, uv)
     ok = vis & np.isfinite(d)

@@ -141,17 +141,12 @@ def _placements(problem: PoseProblem, cfg: PoseConfig) -> tuple[np.ndarray, np.n
             Ts.append(T)
             scores.append(0.0)
             continue
-        sil = np.isfinite(sp.zbuf) & (sp.zbuf <= sp.crop(problem.occluder_depth) + OCCLUSION_MARGIN)
-        inter = int(np.count_nonzero(sil & sp.crop(problem.mask)))
-        iou = inter / max(int(np.count_nonzero(sil)) + area - inter, 1)
+        iou = _window_iou(sp, sp.silhouette(problem.occluder_depth), problem.mask, area)
         # colours of the points it shows (a box tipped on its side shows other faces)
-        ok = sp.centre >= 0
-        cf = np.maximum(sp.centre, 0)
-        vis = ok & (sp.z <= sp.zbuf.reshape(-1)[cf] + OCCLUSION_MARGIN) & (
-            sp.z <= sp.crop(problem.occluder_depth).reshape(-1)[cf] + OCCLUSION_MARGIN)
+        vis = sp.visible(problem.occluder_depth)
         photo = 0.0
         if vis.any():
-            img = sp.crop(problem.rgb).reshape(-1, 3)[cf[vis]].astype(np.float64)
+            img = sp.crop(problem.rgb).reshape(-1, 3)[sp.centre[vis]].astype(np.float64)
             photo = float(np.mean(np.abs(img - cols[vis]).mean(axis=1) <= cfg.tilt_color_tol))
         Ts.append(T)
         scores.append(iou * (0.5 + 0.5 * photo))
@@ -175,6 +170,14 @@ def tilted_start(problem: PoseProblem, cfg: PoseConfig) -> np.ndarray | None:
     if score[~up].max() < score[up].max() + cfg.tilt_margin:
         return None
     return Ts[int(np.argmax(np.where(up, -1.0, score)))]
+
+
+def _window_iou(sp, sil: np.ndarray, mask: np.ndarray, mask_area: int) -> float:
+    """IoU of a window silhouette (``Splats.silhouette``) with a full (H, W) mask of
+    ``mask_area`` pixels (the mask outside the window counts in the union)."""
+    inter = int(np.count_nonzero(sil & sp.crop(mask)))
+    union = int(np.count_nonzero(sil)) + mask_area - inter
+    return inter / union if union else 0.0
 
 
 class _Solver:
@@ -263,8 +266,8 @@ class _Solver:
         zb = sp.zbuf.reshape(-1)
         occ = sp.crop(self.occ2d).reshape(-1)
         vis = inside & (zn <= zb[cflat] + OCCLUSION_MARGIN) & (zn <= occ[cflat] + OCCLUSION_MARGIN)
-        sil = (np.isfinite(sp.zbuf) & (sp.zbuf <= sp.crop(self.occ2d) + OCCLUSION_MARGIN)) if sp.h and sp.w else None
-        self.last_iou = self._sil_iou(sp, sil)
+        sil = sp.silhouette(self.occ2d)
+        self.last_iou = _window_iou(sp, sil, self.mask, self.mask_area) if sp.h and sp.w else 0.0
         if vis.any():
             # distance to the nearest pixel outside the silhouette (the window's border is outside)
             dist_out = ndimage.distance_transform_edt(np.pad(sil, 1))[1:-1, 1:-1]
@@ -297,13 +300,6 @@ class _Solver:
                  + (cfg.lambda_depth * depth_term if self.depth is not None else 0.0))
         return total, (chamfer, photo, reg_z, depth_term)
 
-    def _sil_iou(self, sp, sil) -> float:
-        if sil is None:
-            return 0.0
-        inter = int(np.count_nonzero(sil & sp.crop(self.mask)))
-        union = int(np.count_nonzero(sil)) + self.mask_area - inter
-        return inter / union if union else 0.0
-
     def iou(self, T: np.ndarray) -> float:
         """IoU of the z-buffered projection of all points at motion T with the target mask."""
         T = T @ np.linalg.inv(self.T_init)  # T is a full motion of the stored points
@@ -311,10 +307,7 @@ class _Solver:
         sp = splat(p, self.pb.camera, self.pb.voxel_size)
         if not (sp.h and sp.w):
             return 0.0
-        sil = np.isfinite(sp.zbuf) & (sp.zbuf <= sp.crop(self.occ2d) + OCCLUSION_MARGIN)
-        inter = int(np.count_nonzero(sil & sp.crop(self.mask)))
-        union = int(np.count_nonzero(sil)) + self.mask_area - inter
-        return inter / union if union else 0.0
+        return _window_iou(sp, sp.silhouette(self.occ2d), self.mask, self.mask_area)
 
     # -- the schedule ----------------------------------------------------------------------
     def new_params(self, yaw0: float, t0: np.ndarray):
