@@ -251,6 +251,8 @@ def register(model: np.ndarray, scene: np.ndarray, camera: Camera, depth: np.nda
     from every start rotation (module docstring, 3). None when there are too few scene points."""
     if len(scene) < 20 or len(model) < 20:
         return None
+    if not photo_weight:  # no colour tie-break: the candidates' colour error would go unused
+        colors = None
     rng = np.random.default_rng(seed)
     if len(model) > max_model_points:
         keep_idx = np.sort(rng.choice(len(model), max_model_points, replace=False))
