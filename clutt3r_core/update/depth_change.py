@@ -121,13 +121,14 @@ def depth_changes(state, view: View, config: UpdateConfig, assoc: Association, s
     starts = start_rotations(config.pose.registration_yaw_step_deg)
     found, n_reg = [], 0
     for k in sorted(moved | hidden):
-        model = state.points_of(k).astype(np.float64)
+        sel = state.instance == k
+        model, colors = state.points[sel].astype(np.float64), state.colors[sel]
         diam = float(np.linalg.norm(np.ptp(model, axis=0)))
         for mi, pts, ext, rest in cands:
             if ext > cc.max_extent_ratio * diam + 0.01:
                 continue
             reg = register(model, pts, cam, depth, starts=starts, tol=cc.in_place_tol,
-                           colors=state.colors[state.instance == k], rgb=view.rgb,
+                           colors=colors, rgb=view.rgb,
                            photo_weight=config.pose.registration_photo_weight,
                            tie_margin=config.pose.registration_tie_margin)
             n_reg += 1
