@@ -191,6 +191,11 @@ def instance_iou(pred: VoxelLabels, gt: VoxelLabels) -> tuple[np.ndarray, np.nda
     ids are the labels >= 0 present on each side, ascending.
     """
     lp, lg, _ = _joint_cells(pred, gt)
+    return _iou_on_joint(lp, lg)
+
+
+def _iou_on_joint(lp: np.ndarray, lg: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``instance_iou`` from both sides' labels on their joint cells (``_joint_cells``)."""
     pid = np.unique(lp[lp >= 0])
     gid = np.unique(lg[lg >= 0])
     pi = np.searchsorted(pid, lp)
@@ -215,10 +220,10 @@ def match_instances(
 
     ``pred_scores``: confidence of each predicted id, as an array indexed by id or a dict.
     """
-    iou, pid, _gid, psize = instance_iou(pred, gt)
+    lp, lg, key = _joint_cells(pred, gt)  # once: the union of the cells is most of the cost
+    iou, pid, _gid, psize = _iou_on_joint(lp, lg)
     s = np.array([float(pred_scores[int(i)]) for i in pid], np.float64)
     # tie-break independent of ids: larger prediction first, then its first cell
-    lp, _, key = _joint_cells(pred, gt)
     first_cell = np.full(len(pid), np.iinfo(np.int64).max)
     if len(pid):
         idx = np.searchsorted(pid, lp[lp >= 0])
