@@ -17,7 +17,6 @@ Files: ``GraspSet.save_npz`` / ``GraspSet.load`` (``RUN/grasps.npz``, read by th
 
 from __future__ import annotations
 
-import io
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -83,14 +82,12 @@ class GraspSet:
 
     # -- npz (the viewer's file) -----------------------------------------------------------
     def save_npz(self, path: str | Path) -> Path:
-        from clutt3r_core.io.images import atomic_write_bytes
+        from clutt3r_core.io.images import atomic_write_npz
 
-        buf = io.BytesIO()
         extra = {} if self.contacts is None else {"contacts": np.asarray(self.contacts, np.float32)}
-        np.savez_compressed(buf, poses=np.asarray(self.poses, np.float64), widths=np.asarray(self.widths, np.float32),
-                            scores=np.asarray(self.scores, np.float32), instance=np.asarray(self.instance, np.int32),
-                            **extra)
-        atomic_write_bytes(Path(path), buf.getvalue())
+        atomic_write_npz(Path(path), poses=np.asarray(self.poses, np.float64), widths=np.asarray(self.widths, np.float32),
+                         scores=np.asarray(self.scores, np.float32), instance=np.asarray(self.instance, np.int32),
+                         **extra)
         return Path(path)
 
     @staticmethod

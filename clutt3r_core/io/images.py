@@ -197,7 +197,8 @@ def npz_bytes(**arrays: np.ndarray) -> bytes:
 
 
 def atomic_write_npz(path: str | Path, **arrays: np.ndarray) -> None:
-    """Write ``arrays`` as a compressed ``.npz`` atomically (every npz the tool writes goes through here)."""
+    """Write ``arrays`` as a compressed ``.npz`` atomically (every compressed npz the tool saves goes
+    through here; the query cache and the annotation log write theirs uncompressed with np.savez)."""
     atomic_write_bytes(path, npz_bytes(**arrays))
 
 

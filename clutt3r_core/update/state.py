@@ -23,7 +23,6 @@ On disk (``save_state``), one folder per update, by default under the run::
 
 from __future__ import annotations
 
-import io
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from clutt3r_core.errors import SceneError, SceneFileError
-from clutt3r_core.io.images import atomic_write_bytes
+from clutt3r_core.io.images import atomic_write_bytes, atomic_write_npz
 from clutt3r_core.update.types import LOSS_NAMES, PoseTrace, UpdateResult
 
 __all__ = [
@@ -204,12 +203,6 @@ def apply_update(state: SceneState, result: UpdateResult) -> SceneState:
     )
 
 
-def _npz(**arrays) -> bytes:
-    buf = io.BytesIO()
-    np.savez_compressed(buf, **arrays)
-    return buf.getvalue()
-
-
 def state_dirs(run_dir: str | Path) -> list[Path]:
     """The saved states of a run's chain (``RUN/updates/*/state.json``), by step."""
     root = Path(run_dir) / "updates"
@@ -231,9 +224,9 @@ def save_state(state: SceneState, folder: str | Path, result: UpdateResult | Non
     """Write a state folder (module docstring); every file atomically."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(folder / "state.npz", _npz(
-        points=state.points, colors=state.colors, instance=state.instance,
-        instance_ids=state.instance_ids, embeddings=state.embeddings))
+    atomic_write_npz(
+        folder / "state.npz", points=state.points, colors=state.colors, instance=state.instance,
+        instance_ids=state.instance_ids, embeddings=state.embeddings)
     meta = {
         "schema_version": STATE_VERSION, "step": state.step,
         "frame": state.history[-1].frame if state.history else None,
@@ -256,7 +249,7 @@ def save_state(state: SceneState, folder: str | Path, result: UpdateResult | Non
                 arrays[f"i{r.instance}_losses"] = t.losses
                 arrays[f"i{r.instance}_iou"] = t.iou
         arrays["loss_names"] = np.array(LOSS_NAMES)
-        atomic_write_bytes(folder / "pose.npz", _npz(**arrays))
+        atomic_write_npz(folder / "pose.npz", **arrays)
     return folder
 
 
