@@ -6,7 +6,7 @@ import time
 from pathlib import Path
 from typing import Literal
 
-from clutt3r_core.evaluation.jobs import DIFFICULTIES, METHODS, Method, Setting
+from clutt3r_core.evaluation.jobs import DEFAULT_METHODS, DIFFICULTIES, Method, Setting
 
 __all__ = ["bench_command"]
 
@@ -16,7 +16,7 @@ def bench_command(
     suite: Literal["standard", "quick", "tiny"] = "standard",
     per_difficulty: int = 0,
     scenes_dir: Path | None = None,
-    methods: tuple[Method, ...] = tuple(m for m in METHODS if m != "ours-noisy-depth"),  # type: ignore[assignment]
+    methods: tuple[Method, ...] = DEFAULT_METHODS,  # type: ignore[assignment]
     view_sweep: bool = True,
     noise_sweep: bool = True,
     ablation: bool = False,

@@ -11,7 +11,7 @@ from tyro.conf import Positional
 
 from clutt3r_core.commands.masks import MaskOptions
 
-from clutt3r_core.config import PRESETS, SegmentConfig
+from clutt3r_core.config import PRESETS, PresetName, SegmentConfig
 
 __all__ = ["segment_command"]
 
@@ -20,7 +20,7 @@ def segment_command(
     scene: Positional[Path],
     out: Path,
     config: SegmentConfig = SegmentConfig(),
-    preset: Literal["", "default", "paper", "no-spatial", "no-substitution", "noisy-depth"] = "",
+    preset: Literal["", PresetName] = "",  # nested Literal flattens: "" or a preset name
     mask_options: Annotated[MaskOptions, tyro.conf.arg(name="")] = MaskOptions(),
 ) -> None:
     """Segment a scene folder (sample layout or BOP) and write the run to OUT.

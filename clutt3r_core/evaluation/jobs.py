@@ -21,6 +21,7 @@ from clutt3r_core.evaluation.methods import PRESET_OF  # noqa: F401  (importing 
 
 __all__ = [
     "METHODS",
+    "DEFAULT_METHODS",
     "DIFFICULTIES",
     "MASK_NOISES",
     "DEPTH_NOISES",
@@ -37,6 +38,9 @@ __all__ = [
 
 Method = Literal["ours", "paper", "no-spatial", "no-substitution", "ours-noisy-depth", "naive", "maskclustering"]
 METHODS: tuple[str, ...] = ("ours", "paper", "no-spatial", "no-substitution", "ours-noisy-depth", "naive", "maskclustering")
+DEFAULT_METHODS: tuple[str, ...] = tuple(m for m in METHODS if m != "ours-noisy-depth")
+"""What ``clutt3r bench`` runs unless told: every method but the noisy-depth preset, whose fusion
+is ~2.5x slower at 640x480 (docs/benchmark/strict-iou.md)."""
 DIFFICULTIES: tuple[str, ...] = ("easy", "intermediate", "hard")
 MASK_NOISES: tuple[str, ...] = ("clean", "grounded-sam-like", "harsh")
 DEPTH_NOISES: tuple[str, ...] = ("realsense", "none")
