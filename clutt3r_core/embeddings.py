@@ -15,10 +15,11 @@ are labelled with its name (``Segmentation.embedder``); it cannot embed text.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Protocol, runtime_checkable
+from typing import Callable, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
+from clutt3r_core.scene import MaskCandidates
 
 __all__ = [
     "MaskEmbedder",
@@ -40,7 +41,9 @@ class MaskEmbedder(Protocol):
 
     def embed_masks(self, rgb: np.ndarray, masks: np.ndarray) -> np.ndarray:
         """rgb (H, W, 3) uint8, masks (M, H, W) bool -> (M, dim) float32, rows unit norm
-        (a zero row for an empty mask)."""
+        (a zero row for an empty mask). An embedder with a true ``accepts_candidates``
+        attribute also takes a ``scene.MaskCandidates`` (compact: no (M, H, W) stack is made;
+        the pipeline passes one), any other gets the stack."""
         ...
 
 
@@ -93,20 +96,21 @@ class AppearanceEmbedder:
     min_saturation: int = 40
     """Pixels with saturation below this (0-255) are counted in a separate grey row, whose hue is noise."""
     name: str = "appearance-hsv"
+    accepts_candidates: ClassVar[bool] = True
+    """``embed_masks`` also takes ``scene.MaskCandidates`` (their code image is the factorisation
+    the histograms need; issue 13, 1080p memory)."""
 
     @property
     def dim(self) -> int:
         return (self.hue_bins + 1) * self.sat_bins + self.val_bins
 
-    def embed_masks(self, rgb: np.ndarray, masks: np.ndarray) -> np.ndarray:
+    def embed_masks(self, rgb: np.ndarray, masks: np.ndarray | MaskCandidates) -> np.ndarray:
         import cv2
 
-        m = masks.shape[0]
+        m = len(masks)
         out = np.zeros((m, self.dim), np.float32)
         if m == 0:
             return out
-        from clutt3r_core.segmentation.trees import mask_codes
-
         hsv = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2HSV_FULL).reshape(-1, 3)
         # Bin indices through lookup tables over the 8-bit channels (same formulas,
         # evaluated once per possible value instead of once per pixel).
@@ -121,7 +125,12 @@ class AppearanceEmbedder:
         # Histograms per distinct set of containing masks (a few hundred codes instead of
         # a gather over every mask pixel), summed into each mask by bits.T @ per-code
         # histograms. Counts are integers, so the result is exactly the per-mask count.
-        label, bits = mask_codes(masks.reshape(m, -1))
+        if isinstance(masks, MaskCandidates):
+            label, bits = masks.codes.reshape(-1), masks.bits
+        else:
+            from clutt3r_core.segmentation.trees import mask_codes
+
+            label, bits = mask_codes(np.asarray(masks).reshape(m, -1))
         c = len(bits)
         # one reused int32 key array (int64 temporaries were 3 x 16 MiB per 1080p view)
         key = label.astype(np.int32 if c * d < 2**31 else np.int64)

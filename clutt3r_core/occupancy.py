@@ -31,6 +31,7 @@ import scipy.sparse as sp
 
 from clutt3r_core.errors import SceneError
 from clutt3r_core.pointcloud import FusedCloud
+from clutt3r_core.scene import MaskCandidates
 from clutt3r_core.segmentation.trees import mask_codes
 from clutt3r_core.supervoxels import SuperVoxels
 
@@ -69,19 +70,24 @@ def _check_masks(cloud: FusedCloud, view_index: int, masks: np.ndarray) -> np.nd
     return masks.astype(bool, copy=False)
 
 
-def mask_voxel_hits(cloud: FusedCloud, view_index: int, masks: np.ndarray) -> sp.csr_matrix:
-    """(M, N) float32 CSR: number of pixels of mask m (``masks`` (M, H, W) bool of view
-    ``view_index``) that fed voxel n."""
-    masks = _check_masks(cloud, view_index, masks)
-    pix, vox = _view_pixels(cloud, view_index)
-    m = masks.shape[0]
-    # Only the pixels that fed a voxel are gathered (one pass over the masks, not per mask).
-    # (np.take along axis 1 is about twice as fast as fancy indexing here.)
-    sub = np.take(masks.reshape(m, masks.shape[1] * masks.shape[2]), pix, axis=1)  # (M, P) bool; M may be 0
-    # Factorise those pixels by the set of masks containing them: (code, voxel) pair
+def mask_voxel_hits(cloud: FusedCloud, view_index: int, masks: np.ndarray | MaskCandidates) -> sp.csr_matrix:
+    """(M, N) float32 CSR: number of pixels of mask m (``masks`` (M, H, W) bool, or the
+    ``MaskCandidates``, of view ``view_index``) that fed voxel n."""
+    if isinstance(masks, MaskCandidates):  # compact candidates: read the fed pixels' mask sets
+        _check_masks(cloud, view_index, np.broadcast_to(False, (len(masks), *masks.shape)))  # shape only, 0 bytes
+        pix, vox = _view_pixels(cloud, view_index)
+        label, bits = masks.codes.reshape(-1)[pix], masks.bits
+    else:
+        masks = _check_masks(cloud, view_index, masks)
+        pix, vox = _view_pixels(cloud, view_index)
+        m = masks.shape[0]
+        # Only the pixels that fed a voxel are gathered (one pass over the masks, not per mask).
+        # (np.take along axis 1 is about twice as fast as fancy indexing here.)
+        sub = np.take(masks.reshape(m, masks.shape[1] * masks.shape[2]), pix, axis=1)  # (M, P) bool; M may be 0
+        label, bits = mask_codes(sub)
+    # Pixels factorised by the set of masks containing them: (code, voxel) pair
     # counts, then hits = bits.T @ pair counts. All counts are small integers, exact in
     # float32, so this equals counting (mask, pixel) pairs one by one.
-    label, bits = mask_codes(sub)
     inside = bits.any(axis=1)[label]  # pixels in no mask add nothing
     c = len(bits)
     label, vox = label[inside], vox[inside]
@@ -116,8 +122,8 @@ def mask_occupancy(
         raise SceneError(f"super-voxels label {sv.labels.shape[0]} voxels but the cloud has {cloud.num}")
     if hits is None:
         hits = mask_voxel_hits(cloud, view_index, masks)
-    elif hits.shape != (np.shape(masks)[0], cloud.num):
-        raise SceneError(f"hits must be ({np.shape(masks)[0]}, {cloud.num}), got {hits.shape}")
+    elif hits.shape != (len(masks), cloud.num):
+        raise SceneError(f"hits must be ({len(masks)}, {cloud.num}), got {hits.shape}")
     n, k = cloud.num, sv.num
     _, vox = _view_pixels(cloud, view_index)
     fed = np.bincount(vox, minlength=n).astype(np.float64)  # pixels of the view per voxel

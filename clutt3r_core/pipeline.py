@@ -23,7 +23,7 @@ from clutt3r_core.masks import MaskGenerator, MaskProvenance, ensure_candidates
 from clutt3r_core.occupancy import mask_occupancy, mask_voxel_hits
 from clutt3r_core.pointcloud import fuse_views
 from clutt3r_core.runs import load_run, save_run  # noqa: F401  (re-exported)
-from clutt3r_core.scene import Scene
+from clutt3r_core.scene import MaskCandidates, Scene
 from clutt3r_core.segmentation.evidence import background_masks, check_views
 from clutt3r_core.segmentation.duplicates import duplicate_masks
 from clutt3r_core.segmentation.grouping import (
@@ -35,7 +35,7 @@ from clutt3r_core.segmentation.grouping import (
 )
 from clutt3r_core.segmentation.refine import absorb_fragments, weak_echoes
 from clutt3r_core.segmentation.trace import StageClock, StageTiming, Trace
-from clutt3r_core.segmentation.trees import InstanceTree, build_instance_tree
+from clutt3r_core.segmentation.trees import InstanceTree, build_tree_overlaps
 from clutt3r_core.segmentation.vote import supervoxel_vote
 from clutt3r_core.supervoxels import build_supervoxels
 
@@ -170,7 +170,8 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
     tick("trees")
 
     with timer("trees"):
-        trees = tuple(build_instance_tree(v.masks, v.frame, config.trees) for v in views)
+        built = [build_tree_overlaps(v.masks, v.frame, config.trees) for v in views]
+        trees = tuple(t for t, _ in built)
         nodes_masks, nodes = _node_table(views, trees)
     tick("occupancy")
 
@@ -185,15 +186,17 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
         occupancy = np.concatenate(occ_parts, axis=0) if occ_parts else np.zeros((0, sv.num), np.float32)
         background = np.concatenate(bg_parts) if bg_parts else np.zeros(0, bool)
         # ours (issue 13): near-identical masks of one view are one mask (segmentation/duplicates.py)
-        dups = duplicate_masks(nodes.view, nodes.parent, nodes.is_leaf, background, nodes_masks,
-                               config.grouping.duplicate_iou, config.trees.tau_contain,
-                               areas=np.concatenate([t.areas for t in trees]) if trees else None)
+        # (from the pixel overlaps the trees counted: no pixel is visited again)
+        dups = duplicate_masks(nodes.view, nodes.parent, nodes.is_leaf, background, [o for _, o in built],
+                               config.grouping.duplicate_iou, config.trees.tau_contain)
         nodes = NodeTable(nodes.frame, nodes.view, nodes.mask_id, nodes.parent, nodes.is_leaf & ~dups.shadow,
                           background)
     tick("embeddings + leaf graph")
 
     with timer("embeddings"):
-        emb = [embedder.embed_masks(v.rgb, m) for v, m in zip(views, nodes_masks)]
+        # compact candidates where the embedder takes them, else one view's stack at a time
+        compact = getattr(embedder, "accepts_candidates", False)
+        emb = [embedder.embed_masks(v.rgb, m if compact else m.stack()) for v, m in zip(views, nodes_masks)]
         embeddings = np.concatenate(emb, axis=0).astype(np.float32) if emb else np.zeros((0, 1), np.float32)
 
     with timer("leaf_graph"):
@@ -257,17 +260,15 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
     )
 
 
-def _node_table(views, trees: tuple[InstanceTree, ...]) -> tuple[list[np.ndarray], NodeTable]:
-    """Nodes in canonical order (view by frame, mask by id) and each view's mask stack in that order."""
+def _node_table(views, trees: tuple[InstanceTree, ...]) -> tuple[list[MaskCandidates], NodeTable]:
+    """Nodes in canonical order (view by frame, mask by id) and each view's mask candidates in
+    that order (``MaskCandidates.select``: the view's code image is shared, not copied)."""
     frame, view, mask_id, parent, is_leaf, stacks = [], [], [], [], [], []
     offset = 0
     for vi, (v, t) in enumerate(zip(views, trees)):
         m = len(t.mask_ids)
         idx = np.array([v.masks.index_of(int(i)) for i in t.mask_ids], np.int64)
-        if m and np.array_equal(idx, np.arange(len(v.masks))):
-            stacks.append(v.masks.masks)  # already in canonical order: no copy of the images
-        else:
-            stacks.append(v.masks.masks[idx] if m else np.zeros((0, *v.masks.shape), bool))
+        stacks.append(v.masks if np.array_equal(idx, np.arange(len(v.masks))) else v.masks.select(idx))
         frame.append(np.full(m, v.frame, np.int32))
         view.append(np.full(m, vi, np.int32))
         mask_id.append(t.mask_ids.astype(np.int32))

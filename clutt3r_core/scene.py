@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Iterable
 
 import numpy as np
 
@@ -18,6 +19,7 @@ from clutt3r_core.errors import SceneError
 __all__ = [
     "Camera",
     "MaskCandidates",
+    "encode_masks",
     "View",
     "ObjectInfo",
     "GroundTruth",
@@ -151,49 +153,208 @@ class Camera:
         return pc @ T[:3, :3].T + T[:3, 3]
 
 
-@dataclass(frozen=True, eq=False)
+def encode_masks(rows: Iterable[np.ndarray], n_pixels: int) -> tuple[np.ndarray, np.ndarray]:
+    """Factorise pixels by the set of masks containing them, one mask at a time.
+
+    ``rows``: the masks, each a bool array of ``n_pixels`` elements (any shape), consumed one
+    by one (a loader can decode them one by one and never hold the stack).
+    Returns (label (n_pixels,) int32 or int64 in 0..C-1, bits (C, M) bool): pixel p lies in
+    mask m iff ``bits[label[p], m]``. Masks are packed 16 at a time into uint16 codes that are
+    factorised by counting (no sort); the few hundred distinct sets of nested and overlapping
+    masks then stand for the millions of pixels, and per-mask pixel sums become
+    ``bits.T @ per_set_sums``, exact for integer counts. No mask gives one empty set
+    (label all 0, bits (1, 0)). The labels do not depend on how the rows are split into chunks.
+    """
+    p = int(n_pixels)
+    label: np.ndarray | None = None
+    bits = np.zeros((1, 0), bool)
+    code = np.zeros(p, np.uint16)
+    acc = np.empty(p, np.uint8)
+    tmp = np.empty(p, np.uint8)
+    nb = 0  # masks in the current chunk of (at most) 16
+
+    def fold() -> None:
+        nonlocal label, bits
+        present = np.flatnonzero(np.bincount(code, minlength=1 << nb))
+        cbits = ((present[:, None] >> np.arange(nb)) & 1).astype(bool)
+        k = len(present)
+        lut = np.zeros(1 << nb, np.int32)
+        lut[present] = np.arange(k, dtype=np.int32)
+        if label is None:
+            label, bits = lut[code], cbits
+            return
+        n = len(bits)
+        if n * k >= 2**31:  # astronomically many distinct sets: widen
+            label = label.astype(np.int64)
+        label *= k  # in place: one (P,) int32 label, not three int64 temporaries per chunk
+        label += lut[code]
+        if n * k <= 1 << 22:
+            used = np.flatnonzero(np.bincount(label, minlength=n * k))
+            lut2 = np.zeros(n * k, label.dtype)
+            lut2[used] = np.arange(len(used))
+            label = lut2[label]
+        else:  # very many distinct sets: sort instead of counting
+            used, inv = np.unique(label, return_inverse=True)
+            label = inv.reshape(-1).astype(np.int32 if len(used) < 2**31 else np.int64)
+        bits = np.concatenate([bits[used // k], cbits[used % k]], axis=1)
+
+    for row in rows:
+        r8 = np.ascontiguousarray(row, dtype=bool).reshape(-1).view(np.uint8)
+        if r8.shape[0] != p:
+            raise SceneError(f"a mask has {r8.shape[0]} pixels, expected {p}")
+        # Bits are gathered eight masks at a time in a uint8 accumulator: a quarter of the
+        # memory traffic of shifting every mask into a wide integer.
+        r = nb % 8
+        if r == 0:
+            acc[:] = r8
+        else:
+            np.left_shift(r8, r, out=tmp)
+            acc |= tmp
+        nb += 1
+        if nb % 8 == 0:
+            code |= acc.astype(np.uint16) << np.uint16(nb - 8)
+        if nb == 16:
+            fold()
+            code[:] = 0
+            nb = 0
+    if nb % 8:
+        code |= acc.astype(np.uint16) << np.uint16(nb - nb % 8)
+    if nb or label is None:
+        fold()
+    return label, bits
+
+
+def _small_codes(label: np.ndarray, n_sets: int, shape: tuple[int, int]) -> np.ndarray:
+    dt = np.uint8 if n_sets <= 1 << 8 else np.uint16 if n_sets <= 1 << 16 else np.int32
+    return label.astype(dt, copy=False).reshape(shape)
+
+
+@dataclass(frozen=True, eq=False, init=False)
 class MaskCandidates:
     """The noisy, overlapping mask candidates of one view (e.g. Grounded SAM, prompt "object").
 
+    Stored compactly (issue 13: the (M, H, W) bool stacks of a 1080p scene were 240 MiB, most
+    of the command's peak memory): every pixel carries the index of the set of masks that
+    contain it (``codes``), and a small table says which masks each set holds (``bits``).
+    Overlapping and nested candidates form a few hundred distinct sets, so a 1080p view
+    costs one 2-4 MiB code image instead of 2 MiB per mask, and per-mask pixel sums (areas,
+    pairwise overlaps, histograms, hits per voxel) are sums over the sets, exact for counts.
+
+    Build from a stack, ``MaskCandidates(masks, ids, scores)`` (as before), from masks
+    decoded one at a time (``MaskCandidates.from_masks``: the loaders), or from codes.
+
     Attributes:
-        masks: (M, H, W) bool, one binary mask per candidate. M may be 0.
+        codes: (H, W) uint8 / uint16 / int32 set index of every pixel, 0..C-1.
+        bits: (C, M) bool: set c contains mask m. M may be 0.
         ids: (M,) int32 candidate ids, unique within the view (the ``MM`` of
             ``mask_FFFFFF_MM.png``; 1-based in the sample layout).
         scores: optional (M,) float32 detector confidences in [0, 1].
+
+    ``masks`` gives the (M, H, W) bool stack of the older API: materialised on first use
+    and kept (costly: M x H x W bytes; 30 MiB for 15 masks at 1080p). Code that needs a few
+    masks should use ``mask(i)`` or ``stack(idx)``, which keep nothing.
     """
 
-    masks: np.ndarray
+    codes: np.ndarray
+    bits: np.ndarray
     ids: np.ndarray
     scores: np.ndarray | None = None
 
-    def __post_init__(self) -> None:
-        masks = np.asarray(self.masks)
-        if masks.ndim != 3:
-            raise SceneError(f"mask stack must be (M, H, W), got shape {masks.shape}")
-        masks = masks.astype(bool, copy=False)
-        ids = np.asarray(self.ids, dtype=np.int32).reshape(-1)
-        if ids.shape[0] != masks.shape[0]:
-            raise SceneError(f"{masks.shape[0]} masks but {ids.shape[0]} ids")
+    def __init__(self, masks: np.ndarray | None = None, ids: np.ndarray | None = None,
+                 scores: np.ndarray | None = None, *, codes: np.ndarray | None = None,
+                 bits: np.ndarray | None = None) -> None:
+        if (masks is None) == (codes is None):
+            raise SceneError("MaskCandidates needs either a (M, H, W) mask stack or codes and bits")
+        if ids is None:
+            raise SceneError("MaskCandidates needs ids, one per mask")
+        ids = np.asarray(ids, dtype=np.int32).reshape(-1)
+        if masks is not None:
+            masks = np.asarray(masks)
+            if masks.ndim != 3:
+                raise SceneError(f"mask stack must be (M, H, W), got shape {masks.shape}")
+            if ids.shape[0] != masks.shape[0]:
+                raise SceneError(f"{masks.shape[0]} masks but {ids.shape[0]} ids")
+            label, bits = encode_masks(masks.astype(bool, copy=False), masks.shape[1] * masks.shape[2])
+            codes = _small_codes(label, len(bits), masks.shape[1:])
+        else:
+            codes = np.asarray(codes)
+            bits = np.asarray(bits, dtype=bool)
+            if codes.ndim != 2 or codes.dtype.kind not in "iu":
+                raise SceneError(f"mask codes must be an (H, W) integer image, got {codes.dtype} {codes.shape}")
+            if bits.ndim != 2 or bits.shape[0] < 1:
+                raise SceneError(f"mask bits must be (C >= 1, M), got shape {bits.shape}")
+            if codes.size and (codes.min() < 0 or codes.max() >= bits.shape[0]):
+                raise SceneError(f"mask codes must lie in 0..{bits.shape[0] - 1}")
+            if ids.shape[0] != bits.shape[1]:
+                raise SceneError(f"{bits.shape[1]} masks but {ids.shape[0]} ids")
         if len(np.unique(ids)) != len(ids):
             raise SceneError(f"mask ids must be unique within a view, got {ids.tolist()}")
-        object.__setattr__(self, "masks", _frozen_array(masks))
+        object.__setattr__(self, "codes", _frozen_array(codes))
+        object.__setattr__(self, "bits", _frozen_array(bits))
         object.__setattr__(self, "ids", _frozen_array(ids))
-        if self.scores is not None:
-            s = np.asarray(self.scores, dtype=np.float32).reshape(-1)
+        if scores is not None:
+            s = np.asarray(scores, dtype=np.float32).reshape(-1)
             if s.shape != ids.shape:
                 raise SceneError(f"mask scores shape {s.shape} does not match {ids.shape[0]} masks")
-            object.__setattr__(self, "scores", _frozen_array(s))
+            scores = _frozen_array(s)
+        object.__setattr__(self, "scores", scores)
+
+    @staticmethod
+    def from_masks(masks: Iterable[np.ndarray], ids: np.ndarray, shape: tuple[int, int],
+                   scores: np.ndarray | None = None) -> "MaskCandidates":
+        """From (H, W) bool masks given one at a time (a generator: only one is held at once)."""
+        h, w = int(shape[0]), int(shape[1])
+        label, bits = encode_masks(masks, h * w)
+        return MaskCandidates(ids=ids, scores=scores, codes=_small_codes(label, len(bits), (h, w)), bits=bits)
 
     def __len__(self) -> int:
-        return int(self.masks.shape[0])
+        return int(self.bits.shape[1])
 
     @property
     def shape(self) -> tuple[int, int]:
-        return int(self.masks.shape[1]), int(self.masks.shape[2])
+        return int(self.codes.shape[0]), int(self.codes.shape[1])
+
+    def set_counts(self) -> np.ndarray:
+        """(C,) int64 pixels per set of masks."""
+        return np.bincount(self.codes.reshape(-1), minlength=len(self.bits)).astype(np.int64)
 
     def areas(self) -> np.ndarray:
         """(M,) int64 pixel count of every mask."""
-        return np.count_nonzero(self.masks, axis=(1, 2)).astype(np.int64)  # reshape(0, -1) fails for M = 0
+        return self.bits.T.astype(np.int64) @ self.set_counts()
+
+    def overlaps(self) -> np.ndarray:
+        """(M, M) int64 pixel intersection counts (diagonal = areas): sums over the sets."""
+        b = self.bits.astype(np.int64)
+        return b.T @ (b * self.set_counts()[:, None])
+
+    def mask(self, i: int) -> np.ndarray:
+        """(H, W) bool mask of candidate index ``i`` (not of id ``i``; ``index_of``)."""
+        return self.bits[:, int(i)][self.codes]
+
+    def stack(self, index: np.ndarray | list[int] | None = None) -> np.ndarray:
+        """(k, H, W) bool masks of the candidate indices ``index`` (all when None), newly
+        materialised and not kept (k x H x W bytes)."""
+        cols = self.bits if index is None else self.bits[:, np.asarray(index, np.int64).reshape(-1)]
+        return np.ascontiguousarray(cols.T)[:, self.codes]
+
+    @property
+    def masks(self) -> np.ndarray:
+        """(M, H, W) bool stack, read-only. Costly: materialised on first use and kept with the
+        object (M x H x W bytes); see the class docstring."""
+        st = self.__dict__.get("_stack")
+        if st is None:
+            st = _frozen_array(self.stack())
+            self.__dict__["_stack"] = st  # a cache, not state: frozen fields stay as they are
+        return st
+
+    def select(self, index: np.ndarray | list[int]) -> "MaskCandidates":
+        """The candidates at ``index`` (in that order), sharing this object's code image."""
+        idx = np.asarray(index, np.int64).reshape(-1)
+        return MaskCandidates(ids=self.ids[idx], scores=None if self.scores is None else self.scores[idx],
+                              codes=self.codes, bits=self.bits[:, idx])
+
+    def __getstate__(self) -> dict:
+        return {k: v for k, v in self.__dict__.items() if k != "_stack"}  # the cache is not pickled
 
     def index_of(self, mask_id: int) -> int:
         hits = np.flatnonzero(self.ids == mask_id)

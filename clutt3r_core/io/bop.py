@@ -263,8 +263,9 @@ def load_bop_scene(
         masks = None
         if cands is not None:
             items = cands.get(im, [])
-            stack = np.stack([read_mask(p, (h, w)) for _, p in items]) if items else np.zeros((0, h, w), bool)
-            masks = MaskCandidates(stack, np.array([i for i, _ in items], np.int32))
+            # encoded as decoded, one mask at a time (no (M, H, W) stack; issue 13)
+            masks = MaskCandidates.from_masks((read_mask(p, (h, w)) for _, p in items),
+                                              np.array([i for i, _ in items], np.int32), (h, w))
         imap = None
         if use_vis:
             n = len(gt_lists[im])

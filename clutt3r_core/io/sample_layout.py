@@ -200,12 +200,10 @@ def load_sample_layout(root: str | Path, *, load_masks: bool = True, load_gt: bo
         masks = None
         if load_masks and mask_dir.is_dir():
             items = masks_by_frame.get(frame, [])
-            # filled in place: a list of masks plus np.stack held each view's masks twice,
-            # 8 views at once in the thread pool (issue 13: 1080p peak memory)
-            stack = np.empty((len(items), *hw), bool)
-            for j, (_, p) in enumerate(items):
-                stack[j] = read_mask(p, hw)
-            masks = MaskCandidates(stack, np.array([i for i, _ in items], np.int32))
+            # encoded as they are decoded, one mask at a time: no (M, H, W) stack is ever
+            # held (issue 13: the 1080p stacks were 240 MiB of the command's peak)
+            masks = MaskCandidates.from_masks((read_mask(p, hw) for _, p in items),
+                                              np.array([i for i, _ in items], np.int32), hw)
         return View(frame=frame, rgb=rgb, camera=cam, depth=depth, masks=masks, name=ipath.name)
 
     with ThreadPoolExecutor(_THREADS) as pool:
@@ -304,6 +302,10 @@ def _load_gt(root: Path, views: list[View]) -> GroundTruth:
         raise SceneFileError(gdir, str(e)) from None
 
 
+def _write_mask(path: Path, cands: MaskCandidates, j: int) -> None:
+    write_png(path, cands.mask(j))
+
+
 def _dump_json(path: Path, obj: object) -> None:
     atomic_write_bytes(path, (json.dumps(obj, indent=1) + "\n").encode())
 
@@ -338,8 +340,9 @@ def write_sample_layout(scene: Scene, root: str | Path, *, instance_tree: dict |
                 jobs.append(pool.submit(write_png, root / dep_rel, np.round(mm).astype(np.uint16)))
             if v.masks is not None and len(v.masks):
                 (root / "instance_masks").mkdir(exist_ok=True)
-                for mid, m in zip(v.masks.ids, v.masks.masks):
-                    jobs.append(pool.submit(write_png, root / "instance_masks" / f"mask_{v.frame:06d}_{mid:02d}.png", m))
+                for j, mid in enumerate(v.masks.ids):  # each mask materialised in its job, none kept
+                    jobs.append(pool.submit(_write_mask, root / "instance_masks" / f"mask_{v.frame:06d}_{mid:02d}.png",
+                                            v.masks, j))
         gt = scene.ground_truth
         if gt is not None:
             (root / "gt").mkdir(exist_ok=True)

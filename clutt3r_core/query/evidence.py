@@ -131,7 +131,7 @@ def _view_masks(seg, scene, nodes: np.ndarray):
         if v.masks is None:
             raise SceneError(f"{v.name or f}: view has no mask candidates")
         idx = [v.masks.index_of(int(tr.nodes.mask_id[nodes[j]])) for j in js]
-        yield v, js, v.masks.masks[idx]
+        yield v, js, v.masks.stack(idx)  # only these masks, materialised for this view and not kept
 
 
 def refresh_colors(ev: NodeEvidence, seg, scene) -> NodeEvidence:

@@ -52,9 +52,13 @@ def pixel_iou(a: np.ndarray, b: np.ndarray, area_a: int | None = None, area_b: i
     counts when known; ``buf``: an (H, W) bool scratch array (no allocation per call)."""
     sa = int(np.count_nonzero(a)) if area_a is None else int(area_a)
     sb = int(np.count_nonzero(b)) if area_b is None else int(area_b)
+    return _iou(int(np.count_nonzero(np.logical_and(a, b, out=buf))) if sa and sb else 0, sa, sb)
+
+
+def _iou(inter: int, sa: int, sb: int) -> float:
+    """IoU from pixel counts: intersection ``inter``, areas ``sa`` and ``sb`` (0 when either is empty)."""
     if not sa or not sb:
         return 0.0
-    inter = int(np.count_nonzero(np.logical_and(a, b, out=buf)))
     return inter / (sa + sb - inter)
 
 
@@ -75,17 +79,17 @@ class Duplicates:
 
 def duplicate_masks(
     view: np.ndarray, parent: np.ndarray, is_leaf: np.ndarray, background: np.ndarray,
-    stacks: list[np.ndarray] | tuple[np.ndarray, ...], tau: float, tau_contain: float,
-    areas: np.ndarray | None = None,
+    overlaps: list[np.ndarray] | tuple[np.ndarray, ...], tau: float, tau_contain: float,
 ) -> Duplicates:
     """Sets of near-identical non-background masks of one view (pixel IoU >= ``tau``, connected).
 
     view: (U,) int view of each node (nodes in canonical order, grouped by view);
     parent, is_leaf, background: (U,) as in ``grouping.NodeTable``;
-    stacks: per view, the (M_v, H, W) bool masks of that view's nodes in node order;
+    overlaps: per view, the (M_v, M_v) int64 pixel intersection counts of that view's node
+        masks in node order, diagonal = areas (``trees.build_tree_overlaps``, which the tree
+        builder computes anyway; ``trees.mask_overlaps`` of a stack);
     tau: IoU threshold in (0, 1]; 0 = off (nothing found);
-    tau_contain: the trees' containment fraction (``TreeConfig.tau_contain``);
-    areas: (U,) pixel count of every node's mask when known (``InstanceTree.areas``), else counted.
+    tau_contain: the trees' containment fraction (``TreeConfig.tau_contain``).
 
     A set of leaves only is one candidate (``pairs``: joined in the grouping). A leaf in a set
     that holds a mask with children is a copy of that parent (``shadow``) when it contains one
@@ -95,9 +99,8 @@ def duplicate_masks(
     view). A leaf that does not contain the parent's children (an object B beside the union
     of B and a small neighbour T, whose child is T) stays a candidate.
 
-    Only pairs whose areas allow IoU >= tau (smaller / larger >= tau) are compared, so the cost
-    is a few whole-image ANDs per view (0.07 s for sample_seq4's eight 1080p views, where
-    building the trees took 1.1 s; loaded machine).
+    Every count comes from ``overlaps``: no pixel is visited here (it was a few whole-image
+    ANDs per view, recomputing what the trees had counted and thrown away).
     """
     view = np.asarray(view)
     is_leaf = np.asarray(is_leaf, bool)
@@ -108,24 +111,21 @@ def duplicate_masks(
         raise SceneError(f"duplicate IoU threshold must be in (0, 1], got {tau}")
     usable = ~np.asarray(background, bool)
     pairs: list[DuplicatePair] = []
-    for v, stack in enumerate(stacks):
+    for v, inter in enumerate(overlaps):
         nodes_v = np.flatnonzero(view == v)
-        if len(nodes_v) != len(stack):
-            raise SceneError(f"view {v}: {len(stack)} masks for {len(nodes_v)} nodes")
+        if inter.shape != (len(nodes_v), len(nodes_v)):
+            raise SceneError(f"view {v}: overlaps of shape {inter.shape} for {len(nodes_v)} nodes")
         local = np.flatnonzero(usable[nodes_v])
         if len(local) < 2:
             continue
-        # count_nonzero per mask: no copy of the stack (a 1080p view holds ~2 M pixels per mask)
-        area = ([int(areas[nodes_v[i]]) for i in local] if areas is not None
-                else [int(np.count_nonzero(stack[i])) for i in local])
-        buf = np.empty(stack.shape[1:], bool)
+        area = [int(inter[i, i]) for i in local]
         found: list[DuplicatePair] = []
         for x in range(len(local)):
             for y in range(x + 1, len(local)):
                 lo, hi = sorted((area[x], area[y]))
                 if not lo or lo < tau * hi:  # IoU <= smaller / larger
                     continue
-                iou = pixel_iou(stack[local[x]], stack[local[y]], area[x], area[y], buf)
+                iou = _iou(int(inter[local[x], local[y]]), area[x], area[y])
                 if iou >= tau:
                     found.append(DuplicatePair(int(nodes_v[local[x]]), int(nodes_v[local[y]]), float(iou)))
         for comp in _components(found):
@@ -135,16 +135,17 @@ def duplicate_masks(
             first = int(nodes_v[0])
             children = [int(c) for c in np.flatnonzero(np.isin(parent, comp[~is_leaf[comp]]))]
             for leaf in comp[is_leaf[comp]]:
-                lm = stack[int(leaf) - first]
-                if any(_contained(stack[c - first], lm, tau_contain) for c in children):
+                lf = int(leaf) - first
+                if any(_contained(inter, c - first, lf, tau_contain) for c in children):
                     shadow[leaf] = True
     return Duplicates(tuple(pairs), shadow)
 
 
-def _contained(child: np.ndarray, container: np.ndarray, tau_contain: float) -> bool:
-    """At least ``tau_contain`` of ``child``'s pixels lie inside ``container``."""
-    n = int(np.count_nonzero(child))
-    return n > 0 and np.count_nonzero(child & container) >= tau_contain * n
+def _contained(inter: np.ndarray, child: int, container: int, tau_contain: float) -> bool:
+    """At least ``tau_contain`` of mask ``child``'s pixels lie inside mask ``container``
+    (both indices into the view's overlap matrix ``inter``)."""
+    n = int(inter[child, child])
+    return n > 0 and int(inter[child, container]) >= tau_contain * n
 
 
 def _components(pairs: list[DuplicatePair]) -> list[np.ndarray]:

@@ -25,9 +25,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from clutt3r_core.errors import SceneError
-from clutt3r_core.scene import MaskCandidates
+from clutt3r_core.scene import MaskCandidates, encode_masks
 
-__all__ = ["TreeConfig", "InstanceTree", "build_instance_tree", "min_mask_area", "mask_overlaps", "mask_codes", "subtree_leaves"]
+__all__ = ["TreeConfig", "InstanceTree", "build_instance_tree", "build_tree_overlaps", "min_mask_area", "mask_overlaps", "mask_codes", "subtree_leaves"]
 
 
 @dataclass(frozen=True)
@@ -109,67 +109,27 @@ def subtree_leaves(parent: np.ndarray, is_leaf: np.ndarray) -> list[np.ndarray]:
     return [np.asarray(sorted(x), np.int64) for x in out]
 
 
-def _pack16(flat: np.ndarray) -> np.ndarray:
-    """(P,) uint16 code of a (B <= 16, P) bool stack: bit b set where row b is True."""
-    b, p = flat.shape
-    code = np.zeros(p, np.uint16)
-    acc = np.empty(p, np.uint8)
-    tmp = np.empty(p, np.uint8)
-    # Bits are gathered eight rows at a time in a uint8 accumulator: a quarter of the
-    # memory traffic of shifting every row into a wide integer.
-    for g in range(0, b, 8):
-        acc[:] = flat[g].view(np.uint8)
-        for r in range(1, min(8, b - g)):
-            np.left_shift(flat[g + r].view(np.uint8), r, out=tmp)
-            acc |= tmp
-        code |= acc.astype(np.uint16) << np.uint16(g)
-    return code
-
-
 def mask_codes(flat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Factorise the pixels of a (M, P) bool mask stack by the set of masks containing them.
 
-    Returns (label (P,) int64 in 0..C-1, bits (C, M) bool): pixel p lies in mask m iff
-    ``bits[label[p], m]``. Masks are packed 16 at a time into uint16 codes that are
-    factorised by counting (no sort); the few hundred distinct codes of nested and
-    overlapping masks then stand for the millions of pixels. Per-mask pixel sums become
-    ``bits.T @ per_code_sums``, exact for integer counts. M = 0 gives one empty code.
+    Returns (label (P,) int32 in 0..C-1, bits (C, M) bool): pixel p lies in mask m iff
+    ``bits[label[p], m]`` (``scene.encode_masks``, which ``MaskCandidates`` stores).
+    M = 0 gives one empty code.
     """
     flat = np.asarray(flat, bool)
-    m, p = flat.shape
-    label = np.zeros(p, np.int64)
-    bits = np.zeros((1, 0), bool)
-    for s in range(0, m, 16):
-        chunk = flat[s : s + 16]
-        nb = chunk.shape[0]
-        code = _pack16(chunk)
-        present = np.flatnonzero(np.bincount(code, minlength=1 << nb))
-        lut = np.zeros(1 << nb, np.int64)
-        lut[present] = np.arange(len(present))
-        cbits = ((present[:, None] >> np.arange(nb)) & 1).astype(bool)
-        if s == 0:
-            label, bits = lut[code], cbits
-            continue
-        k = len(present)
-        comb = label * k + lut[code]
-        if len(bits) * k <= 1 << 22:
-            used = np.flatnonzero(np.bincount(comb, minlength=len(bits) * k))
-            lut2 = np.zeros(len(bits) * k, np.int64)
-            lut2[used] = np.arange(len(used))
-            label = lut2[comb]
-        else:  # very many distinct codes: sort instead of counting
-            used, label = np.unique(comb, return_inverse=True)
-            label = label.reshape(-1)
-        bits = np.concatenate([bits[used // k], cbits[used % k]], axis=1)
-    return label, bits
+    return encode_masks(flat, flat.shape[1])
 
 
-def mask_overlaps(masks: np.ndarray) -> np.ndarray:
-    """(M, M) int64 pixel intersection counts of a (M, H, W) bool stack (diagonal = areas).
+def mask_overlaps(masks: np.ndarray | MaskCandidates) -> np.ndarray:
+    """(M, M) int64 pixel intersection counts of a (M, H, W) bool stack or of mask candidates
+    (diagonal = areas).
 
-    Factorises the pixels by the set of masks containing them (``mask_codes``) and
-    accumulates over the few hundred distinct codes instead of M^2 full-image passes.
+    Factorises the pixels by the set of masks containing them (``mask_codes``; stored already
+    by ``MaskCandidates``) and accumulates over the few hundred distinct sets instead of M^2
+    full-image passes.
     """
+    if isinstance(masks, MaskCandidates):
+        return masks.overlaps()
     m = masks.shape[0]
     if m == 0:
         return np.zeros((0, 0), np.int64)
@@ -187,13 +147,20 @@ def min_mask_area(cfg: TreeConfig, height: int, width: int) -> int:
 
 def build_instance_tree(masks: MaskCandidates, frame: int, cfg: TreeConfig = TreeConfig()) -> InstanceTree:
     """Build the containment forest of one view's mask candidates (Sec. III-B.1)."""
+    return build_tree_overlaps(masks, frame, cfg)[0]
+
+
+def build_tree_overlaps(masks: MaskCandidates, frame: int,
+                        cfg: TreeConfig = TreeConfig()) -> tuple[InstanceTree, np.ndarray]:
+    """``build_instance_tree`` and the (M, M) int64 pixel overlaps of the kept masks in the
+    tree's order (``mask_ids``; diagonal = ``areas``), which the duplicate test reuses."""
     h, w = masks.shape if len(masks) else (0, 0)
     min_area = min_mask_area(cfg, h, w)
     order = np.argsort(masks.ids, kind="stable")  # canonical order: by id, whatever the input order
     ids = masks.ids[order]
-    # Overlaps of all masks in one pass over the stack as given (no reordered copy of
-    # the images); reordering and dropping then act on the small (M, M) matrix.
-    inter = mask_overlaps(masks.masks)[np.ix_(order, order)]
+    # Overlaps of all masks from the candidates' code image (one pass over its pixels);
+    # reordering and dropping then act on the small (M, M) matrix.
+    inter = masks.overlaps()[np.ix_(order, order)]
     areas = np.diag(inter).astype(np.int64)
     keep = areas >= min_area
     dropped = ids[~keep]
@@ -215,10 +182,11 @@ def build_instance_tree(masks: MaskCandidates, frame: int, cfg: TreeConfig = Tre
         inv = np.empty(m, np.int64)
         inv[rank] = np.arange(m)
         parent[has] = inv[best[has]]
-    return InstanceTree(
+    tree = InstanceTree(
         frame=int(frame),
         mask_ids=ids.astype(np.int32),
         parent=parent,
         areas=areas,
         dropped_ids=dropped.astype(np.int32),
     )
+    return tree, inter

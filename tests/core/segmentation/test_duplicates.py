@@ -14,6 +14,7 @@ from clutt3r_core.pipeline import instance_tree_json, segment
 from clutt3r_core.scene import MaskCandidates, Scene
 from clutt3r_core.segmentation.duplicates import DuplicatePair, duplicate_masks, pixel_iou
 from clutt3r_core.segmentation.grouping import GroupingConfig, NodeTable, SimilarityGraph, run_grouping
+from clutt3r_core.segmentation.trees import TreeConfig, build_tree_overlaps, mask_overlaps
 from clutt3r_core.synth import SynthConfig, generate_scene
 
 
@@ -40,19 +41,24 @@ def test_leaf_twins_are_paired_and_a_parent_copy_is_a_shadow():
     view = np.array([0, 0, 0, 1, 1, 1, 2, 2, 2])
     parent = np.array([-1, -1, -1, -1, -1, 3, -1, 6, -1])
     is_leaf = np.array([1, 1, 1, 0, 1, 1, 0, 1, 1], bool)
-    d = duplicate_masks(view, parent, is_leaf, np.zeros(9, bool), stacks, 0.9, 0.85)
+    overlaps = [mask_overlaps(s) for s in stacks]
+    d = duplicate_masks(view, parent, is_leaf, np.zeros(9, bool), overlaps, 0.9, 0.85)
     assert [(p.a, p.b) for p in d.pairs] == [(0, 1)]
     assert d.pairs[0].iou == pytest.approx(390 / 400)
+    assert d.pairs[0].iou == pixel_iou(a, a2)          # the counts give the pixels' IoU exactly
     assert np.flatnonzero(d.shadow).tolist() == [4]    # u2 is the union again; B (node 8) stays a candidate
-    areas = np.concatenate([s.reshape(len(s), -1).sum(1) for s in stacks])
-    given = duplicate_masks(view, parent, is_leaf, np.zeros(9, bool), stacks, 0.9, 0.85, areas=areas)
-    assert given.pairs == d.pairs and np.array_equal(given.shadow, d.shadow)
-    off = duplicate_masks(view, parent, is_leaf, np.zeros(9, bool), stacks, 0.0, 0.85)
+    # the overlaps the tree builder computed are the ones a stack gives
+    tree, inter = build_tree_overlaps(MaskCandidates(stacks[1], np.array([1, 2, 3])), 0, TreeConfig(min_area_px=1))
+    np.testing.assert_array_equal(inter, overlaps[1])
+    assert tree.parent.tolist() == [-1, -1, 0]
+    off = duplicate_masks(view, parent, is_leaf, np.zeros(9, bool), overlaps, 0.0, 0.85)
     assert off.pairs == () and not off.shadow.any()
     # background masks are never duplicates of anything
     bg = np.zeros(9, bool)
     bg[1] = True
-    assert duplicate_masks(view, parent, is_leaf, bg, stacks, 0.9, 0.85).pairs == ()
+    assert duplicate_masks(view, parent, is_leaf, bg, overlaps, 0.9, 0.85).pairs == ()
+    with pytest.raises(Exception, match="overlaps"):
+        duplicate_masks(view, parent, is_leaf, bg, overlaps[:2] + [overlaps[2][:2, :2]], 0.9, 0.85)
 
 
 @settings(max_examples=40, deadline=None)
