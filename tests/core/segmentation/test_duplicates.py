@@ -50,7 +50,7 @@ def test_leaf_twins_are_paired_and_a_parent_copy_is_a_shadow():
     # the overlaps the tree builder computed are the ones a stack gives
     tree, inter = build_tree_overlaps(MaskCandidates(stacks[1], np.array([1, 2, 3])), 0, TreeConfig(min_area_px=1))
     np.testing.assert_array_equal(inter, overlaps[1])
-    assert tree.parent.tolist() == [-1, -1, 0]
+    assert tree.parent.tolist() == [-1, -1, 1]         # t's parent: the smaller copy u2
     off = duplicate_masks(view, parent, is_leaf, np.zeros(9, bool), overlaps, 0.0, 0.85)
     assert off.pairs == () and not off.shadow.any()
     # background masks are never duplicates of anything
