@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["estimate_normals", "smallest_eigvec"]
+__all__ = ["estimate_normals", "knn_query", "knn_tree", "smallest_eigvec"]
 
 # Points per block of the normal estimation: bounds the (block, knn) neighbour
 # offsets, distances and indices (about 5 x 20 x 4 Ki x 8 B = 3 MiB); measured on
@@ -16,48 +16,104 @@ __all__ = ["estimate_normals", "smallest_eigvec"]
 # ones, at the same speed (issue 13, 1080p memory). Each row's result is independent of
 # the block it falls in (the same bits, tests/core/test_normals.py).
 _NORMAL_BLOCK = 1 << 12
+# Points per k-NN query: each query is an OpenMP region, whose
+# start and barrier cost CPU on a loaded machine; 64 Ki rows hold 10 MiB of distances and
+# 5 MiB of indices.
+_QUERY_BLOCK = 1 << 16
+# Fewer queries than this run on one thread (knn_query).
+_PARALLEL_MIN_QUERIES = 1 << 12
+
+
+def knn_tree(points: np.ndarray):
+    """A k-d tree over (N, 3) float64 ``points`` (C-contiguous) for ``knn_query``.
+
+    pykdtree's (issue 13): on a hard 640x480 scene (157 k voxels, k = 20) its query takes
+    0.33 s of CPU where scipy's cKDTree took 0.51 s, and importing it takes 1 ms where
+    ``scipy.spatial`` takes 0.09 s (its package init loads qhull, scipy.linalg and
+    scipy.special, none of which the segmentation uses). Its distances are the same float64
+    sums as cKDTree's, so the neighbours are the same up to the order of equal distances
+    (``knn_query``); its queries run on OpenMP threads (all cores; the results do not
+    depend on their number).
+    """
+    from pykdtree.kdtree import KDTree
+
+    return KDTree(np.ascontiguousarray(points, dtype=np.float64))
+
+
+def knn_query(tree, queries: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The ``k`` nearest tree points of each row of ``queries`` (Q, 3) float64:
+    ((Q, k) float64 squared distances, ascending, (Q, k) int32 indices).
+
+    Equal distances within a row are ordered by index (ours): the tree's own order of
+    ties depends on how it was built, and the order sets the summation order, so the bits,
+    of the normals' covariances. Which of several points tied at the k-th distance is
+    kept is the tree's choice (about 1 row in 10^5 on the generated scenes).
+
+    Fewer than ``_PARALLEL_MIN_QUERIES`` rows are queried on one thread: an OpenMP region
+    costs its threads' start and barrier, measured 7 ms of CPU for 74 rows on a loaded
+    2-core machine against 0.2 ms on one thread.
+    """
+    q = np.ascontiguousarray(queries, dtype=np.float64)
+    if len(q) < _PARALLEL_MIN_QUERIES:
+        from threadpoolctl import threadpool_limits
+
+        with threadpool_limits(1, user_api="openmp"):
+            d2, idx = tree.query(q, k=k, sqr_dists=True)
+    else:
+        d2, idx = tree.query(q, k=k, sqr_dists=True)
+    d2 = d2.reshape(len(q), k)
+    # uint32 below 2^31 points: the same values as int32
+    idx = (idx.view(np.int32) if idx.dtype == np.uint32 else idx.astype(np.int32)).reshape(len(q), k)
+    if k > 1:
+        tie = np.flatnonzero((d2[:, 1:] == d2[:, :-1]).any(axis=1))
+        if len(tie):
+            # lexsort per row: distance first, then index (a handful of rows per scene)
+            order = np.lexsort((idx[tie], d2[tie]), axis=1)
+            idx[tie] = np.take_along_axis(idx[tie], order, axis=1)
+            d2[tie] = np.take_along_axis(d2[tie], order, axis=1)
+    return d2, idx
 
 
 def estimate_normals(points: np.ndarray, knn: int, *, neighbours: bool = False):
     """(N, 3) float64 unit PCA normals, unoriented: the eigenvector of the smallest
     eigenvalue of the covariance of each point's ``knn`` nearest points (itself included).
-    With ``neighbours=True``, returns (normals, (N, min(knn, N)) int32 neighbour indices
-    as cKDTree gives them, nearest first; None for fewer than 3 points).
+    With ``neighbours=True``, returns (normals, (N, min(knn, N)) int32 neighbour indices,
+    nearest first, equal distances by index (``knn_query``); None for fewer than 3 points).
 
     The same estimate as Open3D's ``PointCloud.estimate_normals(KDTreeSearchParamKNN(knn))``,
     which this replaced (issue 13): ``import open3d`` costs about 0.9 s per process
     because its package init loads its plotly/dash visualisation, and normals were the
     only thing the segmentation core used it for. Measured against Open3D 0.20 on a hard
     generated scene (157 k voxels) and on sample_seq4 the two differ by at most a few
-    micro-degrees (tests/core/test_normals.py). Neighbours come from scipy's cKDTree; the
-    eigenvector is the closed form for a symmetric 3x3 matrix (``smallest_eigvec``).
+    micro-degrees (tests/core/test_normals.py). Neighbours come from ``knn_tree`` /
+    ``knn_query``; the eigenvector is the closed form for a symmetric 3x3 matrix
+    (``smallest_eigvec``).
     """
     n = points.shape[0]
     if n < 3:
         nrm = np.tile([0.0, 0.0, 1.0], (n, 1))
         return (nrm, None) if neighbours else nrm
-    from scipy.spatial import cKDTree
-
     pts = np.ascontiguousarray(points, dtype=np.float64)
     k = min(knn, n)
-    tree = cKDTree(pts)
+    tree = knn_tree(pts)
     cols = [np.ascontiguousarray(pts[:, a]) for a in range(3)]
     nrm = np.empty((n, 3))
     table = np.empty((n, k), np.int32) if neighbours else None
-    for s in range(0, n, _NORMAL_BLOCK):
-        q = pts[s : s + _NORMAL_BLOCK]
-        _, idx = tree.query(q, k=k, workers=-1)
-        idx = idx.reshape(len(q), k)
-        if table is not None:
-            table[s : s + len(q)] = idx
-        # offsets from the query point: the covariance is translation-free, and centring
-        # on a nearby point keeps the sums small (no cancellation at metres from the origin)
-        d = [c[idx] - q[:, a, None] for a, c in enumerate(cols)]
-        m = [x.mean(axis=1) for x in d]
-        cov = np.empty((len(q), 6))
-        for j, (a, b) in enumerate(((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))):
-            cov[:, j] = np.einsum("ij,ij->i", d[a], d[b]) / k - m[a] * m[b]
-        nrm[s : s + len(q)] = smallest_eigvec(cov)
+    for s0 in range(0, n, _QUERY_BLOCK):  # one query per _QUERY_BLOCK rows: few OpenMP regions
+        _, qidx = knn_query(tree, pts[s0 : s0 + _QUERY_BLOCK], k)
+        for s in range(s0, s0 + len(qidx), _NORMAL_BLOCK):
+            q = pts[s : min(s + _NORMAL_BLOCK, s0 + len(qidx))]
+            idx = qidx[s - s0 : s - s0 + len(q)].astype(np.intp)
+            if table is not None:
+                table[s : s + len(q)] = idx
+            # offsets from the query point: the covariance is translation-free, and centring
+            # on a nearby point keeps the sums small (no cancellation at metres from the origin)
+            d = [c[idx] - q[:, a, None] for a, c in enumerate(cols)]
+            m = [x.mean(axis=1) for x in d]
+            cov = np.empty((len(q), 6))
+            for j, (a, b) in enumerate(((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))):
+                cov[:, j] = np.einsum("ij,ij->i", d[a], d[b]) / k - m[a] * m[b]
+            nrm[s : s + len(q)] = smallest_eigvec(cov)
     bad = ~np.isfinite(nrm).all(axis=1) | (np.linalg.norm(nrm, axis=1) < 0.5)
     nrm[bad] = (0.0, 0.0, 1.0)  # degenerate neighbourhoods (coincident voxels); oriented later
     return (nrm, table) if neighbours else nrm

@@ -170,8 +170,8 @@ class FusedCloud:
         camera_centres: (V, 3) float64 world position of each fused view's camera, metres,
             or None when unknown (ours: lets later stages orient things towards the cameras).
         neighbours: (N, k) int32, row n = the k voxels nearest to voxel n by Euclidean
-            distance, nearest first (itself included, normally first), as scipy's cKDTree
-            ``query(points, k)`` gives them; the neighbourhoods of the normals (k =
+            distance, nearest first (itself included, normally first), equal distances by
+            index (``normals.knn_query``); the neighbourhoods of the normals (k =
             ``normal_knn``, or N when smaller), kept so that the super-voxel graph does not
             query them again (ours, issue 13: a second k-NN query was a quarter of the
             super-voxel stage). None when not computed.

@@ -45,6 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from clutt3r_core.errors import SceneError
+from clutt3r_core.normals import knn_query, knn_tree
 from clutt3r_core.pointcloud import FusedCloud
 
 __all__ = ["SuperVoxelConfig", "SuperVoxels", "build_supervoxels", "fit_plane_ransac"]
@@ -259,11 +260,12 @@ def _knn_edges(
     points: np.ndarray, k: int, max_dist: float, neighbours: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Directed k-NN pairs (i, j int32, ||x_i - x_j|| float64) with distance < max_dist, self
-    excluded: the pairs of cKDTree's ``query(points, k + 1, distance_upper_bound=max_dist)``.
+    excluded: the pairs of a k-NN query of k + 1 points bounded by max_dist (strictly, as
+    scipy's cKDTree bounds it), by ``normals.knn_tree`` / ``knn_query`` (pykdtree, issue 13).
 
     ``neighbours``: the cloud's (N, k') nearest-first neighbour table (``FusedCloud.neighbours``,
     from the normals; issue 13: this second k-NN query was a quarter of the stage). Its
-    distances are computed the way cKDTree computes them, ((dx^2 + dy^2) + dz^2) in float64
+    distances are computed the way the k-d trees compute them, ((dx^2 + dy^2) + dz^2) in float64
     against the squared bound, then the square root: the same bits. A row's first k + 1
     entries are the query's neighbours when they are strictly nearer than the rest of the
     row and than any point outside it. The table was ranked on the float64 voxel means, not
@@ -273,19 +275,20 @@ def _knn_edges(
     queried as before. The pairs are then those of the query, up to their order within a
     row (tests/core/test_supervoxels.py).
     """
-    from scipy.spatial import cKDTree
-
     n = points.shape[0]
     kq = min(k + 1, n)
-    pts = np.asarray(points, np.float64)
+    pts = np.ascontiguousarray(points, np.float64)
+    bound = max_dist * max_dist
     kt = 0 if neighbours is None or neighbours.shape[0] != n else neighbours.shape[1]
     if not (n and (kt > kq or kt == n >= kq)):  # no table, or too short a row to tell
-        dist, idx = cKDTree(pts).query(pts, k=kq, distance_upper_bound=max_dist, workers=-1)
-        return _pairs(np.arange(n, dtype=np.int32), idx, dist, n)
+        if not n:
+            return np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0)
+        rows = np.arange(n, dtype=np.int32)
+        idx = _nearest(knn_tree(pts), pts, pts, rows, kq, bound)
+        return _pairs(rows, idx, np.sqrt(_sq_dist(pts, rows, idx)), n)
     # the k + 1 candidates, then (when the row has more) the next one and the farthest one
     cols = list(range(kq)) + ([kq, kt - 1] if kt > kq else [])
     margin = _ROUNDING_MARGIN * float(np.spacing(np.float32(np.abs(pts).max())))
-    bound = max_dist * max_dist
     tree = None
     # the pairs are written in place (at most kq per row): concatenating per-block parts
     # held the edges twice, the stage's peak at 1080p
@@ -297,11 +300,7 @@ def _knn_edges(
     for s in range(0, n, _EDGE_BLOCK):
         rows = np.arange(s, min(s + _EDGE_BLOCK, n), dtype=np.int32)
         idx = neighbours[s : s + len(rows)][:, cols]
-        d2 = np.zeros(idx.shape)
-        for a in range(3):  # column by column: the same sum order as cKDTree's distance
-            diff = pts[idx, a] - pts[rows, a, None]
-            diff *= diff
-            d2 += diff
+        d2 = _sq_dist(pts, rows, idx)
         d = np.sqrt(d2)
         if kt == kq:  # == n: every point is a neighbour, there is no cut
             exact = np.ones(len(rows), bool)
@@ -315,12 +314,42 @@ def _knn_edges(
         idx[d2[:, :kq] >= bound] = n  # beyond the bound: "no neighbour", as the query reports it
         redo = np.flatnonzero(~exact)
         if len(redo):
-            tree = cKDTree(pts) if tree is None else tree
-            dist[redo], idx[redo] = tree.query(pts[rows[redo]], k=kq, distance_upper_bound=max_dist)
+            tree = knn_tree(pts) if tree is None else tree
+            idx[redo] = _nearest(tree, pts, pts[rows[redo]], rows[redo], kq, bound)
+            dist[redo] = np.sqrt(_sq_dist(pts, rows[redo], idx[redo]))
         a, b, c = _pairs(rows, idx, dist, n)
         out_src[m : m + len(a)], out_dst[m : m + len(a)], out_dist[m : m + len(a)] = a, b, c
         m += len(a)
     return out_src[:m], out_dst[:m], out_dist[:m]
+
+
+def _sq_dist(pts: np.ndarray, rows: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """(R, c) squared distances from ``pts[rows]`` to ``pts[idx]`` (index n = "no neighbour":
+    inf), summed column by column, ((dx^2 + dy^2) + dz^2) in float64: the k-d trees' own sum,
+    so the same bits as their distances."""
+    n = len(pts)
+    none = idx >= n
+    j = np.where(none, 0, idx) if none.any() else idx
+    d2 = np.zeros(idx.shape)
+    for a in range(3):
+        diff = pts[j, a] - pts[rows, a, None]
+        diff *= diff
+        d2 += diff
+    d2[none] = np.inf
+    return d2
+
+
+def _nearest(tree, pts: np.ndarray, queries: np.ndarray, rows: np.ndarray, kq: int, bound: float) -> np.ndarray:
+    """(R, kq) int64 indices of the ``kq`` nearest points of each query, n (no neighbour)
+    where the squared distance is >= ``bound``: what cKDTree's
+    ``query(k=kq, distance_upper_bound=sqrt(bound))`` reported (its bound is strict)."""
+    n = len(pts)
+    kk = min(kq, n)
+    _, idx = knn_query(tree, queries, kk)
+    out = np.full((len(queries), kq), n, np.int64)
+    out[:, :kk] = idx
+    out[_sq_dist(pts, rows, out) >= bound] = n
+    return out
 
 
 def _pairs(rows: np.ndarray, idx: np.ndarray, dist: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -1,4 +1,4 @@
-"""Normals without Open3D (issue 13): the scipy/numpy estimate equals Open3D's ``estimate_normals``.
+"""Normals without Open3D (issue 13): the pykdtree/numpy estimate equals Open3D's ``estimate_normals``.
 
 ``normals.estimate_normals`` (``pointcloud``'s) replaced Open3D's KNN PCA normals so that the segmentation
 core never imports open3d (0.9 s of package init per process). These tests pin that the
@@ -147,8 +147,10 @@ def test_normals_and_neighbours_do_not_depend_on_the_block_size(monkeypatch):
 
     pts = _noisy_surfaces(seed=5)
     whole, table = None, None
-    for block in (1 << 20, 4096, 997, 7):
+    # (covariance block, query block): the query block need not be a multiple of the other
+    for block, qblock in ((1 << 20, 1 << 20), (4096, 1 << 16), (997, 3000), (7, 5), (4096, 1)):
         monkeypatch.setattr(pc, "_NORMAL_BLOCK", block)
+        monkeypatch.setattr(pc, "_QUERY_BLOCK", qblock)
         nrm, tab = _estimate_normals(pts, 20, neighbours=True)
         if whole is None:
             whole, table = nrm, tab
@@ -156,3 +158,38 @@ def test_normals_and_neighbours_do_not_depend_on_the_block_size(monkeypatch):
             assert tab.dtype == np.int32
         np.testing.assert_array_equal(nrm, whole)
         np.testing.assert_array_equal(tab, table)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(3, 300), k=st.integers(1, 25), grid=st.booleans())
+def test_knn_query_is_the_exact_knn_with_ties_by_index(seed, n, k, grid):
+    """Property (issue 13: pykdtree replaced scipy's cKDTree): each row holds the k nearest
+    points with exactly cKDTree's float64 distances, ascending, equal distances by index; the
+    points strictly nearer than the k-th distance are cKDTree's (at the k-th distance itself
+    either tree may keep any of the tied points). Grid points make many exact ties."""
+    from scipy.spatial import cKDTree
+
+    from clutt3r_core.normals import knn_query, knn_tree
+
+    rng = np.random.default_rng(seed)
+    if grid:  # voxel means on a millimetre grid: many exactly equal distances
+        pts = rng.integers(0, 8, (n, 3)) * 0.004 + np.array([0.31, -0.2, 0.7])
+    else:
+        pts = rng.random((n, 3)) * 0.08 + np.array([0.31, -0.2, 0.7])
+    k = min(k, n)
+    d2, idx = knn_query(knn_tree(pts), pts, k)
+    assert idx.dtype == np.int32 and idx.shape == (n, k) and d2.shape == (n, k)
+    ref_d, ref_i = cKDTree(pts).query(pts, k=k)
+    ref_d, ref_i = ref_d.reshape(n, k), ref_i.reshape(n, k)
+    np.testing.assert_array_equal(np.sqrt(d2), ref_d)
+    # the distances really are those of the returned points, summed as the trees sum them
+    diff = pts[idx] - pts[:, None, :]
+    np.testing.assert_array_equal(d2, (diff[..., 0] ** 2 + diff[..., 1] ** 2) + diff[..., 2] ** 2)
+    assert (np.diff(d2, axis=1) >= 0).all()
+    tie = np.diff(d2, axis=1) == 0
+    assert (np.diff(idx.astype(np.int64), axis=1)[tie] > 0).all()  # ties by ascending index
+    for r in range(n):
+        inner = d2[r] < d2[r, -1]
+        assert set(idx[r, inner].tolist()) == set(ref_i[r, inner].tolist())
+    if not grid:  # no ties: the very same table as cKDTree's
+        np.testing.assert_array_equal(idx, ref_i)
