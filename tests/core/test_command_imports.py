@@ -17,9 +17,11 @@ from clutt3r_core.io import write_sample_layout
 from tests.core.robustness._scenes import make_scene
 
 # never needed to segment a scene: other commands' packages and open3d's visualisation
-# (scipy.spatial: 0.09 s of package init; the k-NN queries are pykdtree's, issue 13)
+# (scipy.spatial and scipy.sparse.csgraph, which loads scipy.linalg: 0.1-0.2 s of package
+# init each; the k-NN queries are pykdtree's, the super-voxels' components our own, issue 13)
 _FORBIDDEN = ("open3d", "dash", "plotly", "clutt3r_viewer", "clutt3r_core.evaluation", "clutt3r_core.grasping",
-              "clutt3r_core.synth", "clutt3r_core.update", "clutt3r_core.baselines", "scipy.spatial")
+              "clutt3r_core.synth", "clutt3r_core.update", "clutt3r_core.baselines", "scipy.spatial",
+              "scipy.sparse.csgraph", "scipy.linalg")
 
 
 def _modules_after(code: str, *args: str) -> tuple[subprocess.CompletedProcess, list[str]]:
