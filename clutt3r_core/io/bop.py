@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from clutt3r_core.errors import SceneError, SceneFileError
-from clutt3r_core.io.images import read_depth_mm, read_mask, read_rgb
+from clutt3r_core.io.images import read_depth_mm, read_mask, read_masks, read_rgb
 from clutt3r_core.io.sample_layout import _read_json, _scan_masks
 from clutt3r_core.scene import Camera, GroundTruth, MaskCandidates, ObjectInfo, Scene, View, check_rigid
 
@@ -264,7 +264,7 @@ def load_bop_scene(
         if cands is not None:
             items = cands.get(im, [])
             # encoded as decoded, one mask at a time (no (M, H, W) stack; issue 13)
-            masks = MaskCandidates.from_masks((read_mask(p, (h, w)) for _, p in items),
+            masks = MaskCandidates.from_masks(read_masks([p for _, p in items], (h, w)),
                                               np.array([i for i, _ in items], np.int32), (h, w))
         imap = None
         if use_vis:

@@ -39,7 +39,7 @@ from clutt3r_core.io.images import (
     atomic_write_npz,
     read_depth_mm,
     read_label_png,
-    read_mask,
+    read_masks,
     read_rgb,
     write_png,
 )
@@ -202,7 +202,7 @@ def load_sample_layout(root: str | Path, *, load_masks: bool = True, load_gt: bo
             items = masks_by_frame.get(frame, [])
             # encoded as they are decoded, one mask at a time: no (M, H, W) stack is ever
             # held (issue 13: the 1080p stacks were 240 MiB of the command's peak)
-            masks = MaskCandidates.from_masks((read_mask(p, hw) for _, p in items),
+            masks = MaskCandidates.from_masks(read_masks([p for _, p in items], hw),
                                               np.array([i for i, _ in items], np.int32), hw)
         return View(frame=frame, rgb=rgb, camera=cam, depth=depth, masks=masks, name=ipath.name)
 
