@@ -12,7 +12,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Literal, Optional
 
 import tyro
 from tyro.conf import Positional
@@ -30,11 +30,13 @@ class MaskOptions:
     """auto: the scene's own instance_masks/ when it has them, else the builtin generator;
     builtin: multi-scale RGB-D segmentation (no weights); import: read --mask-source;
     sam-onnx: a SAM-family ONNX encoder/decoder pair (--sam-encoder, --sam-decoder)."""
-    mask_source: Path | None = None
+    # Optional[Path], not Path | None: tyro checks the defaults of X | None types with
+    # typeguard, whose import (unittest.mock, asyncio) cost every `clutt3r segment` 50-100 ms
+    mask_source: Optional[Path] = None  # noqa: UP007
     """import: a mask PNG folder, a folder of per-view .npz / .json, or one COCO JSON file."""
-    sam_encoder: Path | None = None
+    sam_encoder: Optional[Path] = None  # noqa: UP007
     """sam-onnx: local path of the image encoder .onnx."""
-    sam_decoder: Path | None = None
+    sam_decoder: Optional[Path] = None  # noqa: UP007
     """sam-onnx: local path of the prompt decoder .onnx."""
 
 

@@ -21,7 +21,9 @@ from tests.core.robustness._scenes import make_scene
 # init each; the k-NN queries are pykdtree's, the super-voxels' components our own, issue 13)
 _FORBIDDEN = ("open3d", "dash", "plotly", "clutt3r_viewer", "clutt3r_core.evaluation", "clutt3r_core.grasping",
               "clutt3r_core.synth", "clutt3r_core.update", "clutt3r_core.baselines", "scipy.spatial",
-              "scipy.sparse.csgraph", "scipy.linalg")
+              "scipy.sparse.csgraph", "scipy.linalg",
+              # tyro checks X | None defaults with typeguard (50-100 ms with unittest.mock, asyncio)
+              "typeguard", "asyncio")
 
 
 def _modules_after(code: str, *args: str) -> tuple[subprocess.CompletedProcess, list[str]]:
