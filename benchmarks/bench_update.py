@@ -6,8 +6,9 @@ views, run ``update_scene`` on the post view, and score against ``gt/interaction
 
 - instances are mapped to ground-truth objects by their points (nearest labelled GT point
   within 1 cm, majority; the instance with most points of an object is its *main* instance);
-- removed: recall = the removed object's main instance is reported removed; precision = of
-  the instances reported removed, the fraction that belong to the removed object;
+- removed: recall = the removed object's main instance is reported removed (over all pairs,
+  and over the pairs where the initial segmentation made an instance of it at all); precision
+  = of the instances reported removed, the fraction that belong to the removed object;
 - displaced: the same with the displaced object (recall counted over pairs where the object is
   visible in the post view, >= 200 px of the GT map);
 - static flagged: instances of untouched objects reported displaced or removed;
@@ -205,6 +206,8 @@ def run_pair(scene_dir: Path, run_dir: Path, cfg: UpdateConfig, no_depth: bool, 
         "scene": scene_dir.parent.name, "time_s": dt, "cpu_s": dc, "embedder": state.embedder,
         "embed_run_s": embed_s, "embed_run_cpu_s": embed_cpu_s,
         "removed_found": main.get(rem_o) in pred_removed,
+        # a removed object the initial segmentation never made an instance of cannot be reported
+        "removed_has_instance": rem_o in main,
         "removed_pred": len(pred_removed), "removed_pred_true": sum(inst_obj.get(k) == rem_o for k in pred_removed),
         "displaced_visible": dis_visible, "displaced_has_instance": dis_o in main,
         "displaced_found": main.get(dis_o) in pred_displaced,
@@ -246,6 +249,8 @@ def summarise(rows: list[dict]) -> dict:
     return {
         "pairs": n,
         "removed_recall": sum(r["removed_found"] for r in rows) / n,
+        "removed_recall_with_instance": (sum(r["removed_found"] for r in rows if r.get("removed_has_instance", True))
+                                         / max(1, sum(r.get("removed_has_instance", True) for r in rows))),
         "removed_precision": sum(r["removed_pred_true"] for r in rows) / rem_pred if rem_pred else float("nan"),
         "displaced_recall_visible": sum(r["displaced_found"] for r in vis) / len(vis) if vis else float("nan"),
         "displaced_precision": sum(r["displaced_pred_true"] for r in rows) / dis_pred if dis_pred else float("nan"),

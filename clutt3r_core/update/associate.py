@@ -20,7 +20,8 @@ Rules, in order (each instance takes at most one mask and each mask at most one 
    object, whose projection has moved away). With new depth, instances whose old place still
    shows them (rule 5's depth presence test) have not moved and are left out of this stage
    (ours, ``exclude_present``); without depth, the same for instances the photometric
-   in-place test (photo_change.py) finds where they were.
+   in-place test (photo_change.py) finds where they were, and for small fragments it cannot
+   judge (``ChangeConfig.photo_fragment_points``).
 3. Parent substitution (Sec. III-B.3): a residual (unmatched) leaf is replaced by its tree
    parent when all of the parent's descendant leaves are residual; the parents are then
    matched to the remaining instances by rules 1 and 2.
@@ -42,8 +43,9 @@ Rules, in order (each instance takes at most one mask and each mask at most one 
    decides instead: in place = ``static`` ("present-photo") whether or not a mask covers it
    and however much of it is hidden (measured on seeds 100-103: 8 static objects whose mask
    the detector dropped were reported removed); if not hidden, gone = ``removed`` and
-   anything between = ``static``. Otherwise it is ``removed``
-   (its place is visible and it is not there).
+   anything between = ``static``; when it could not judge it and the instance has fewer than
+   ``ChangeConfig.photo_fragment_points`` stored points, it is a fragment: ``occluded`` (kept).
+   Otherwise it is ``removed`` (its place is visible and it is not there).
 6. Unmatched masks (leaves, and parents that replaced residual leaves) are ``new`` unless
    they lie at least ``part_fraction`` inside a matched mask (a part of a matched instance).
 """
@@ -153,6 +155,10 @@ def unmatched_status(view: View, proj: Projection, i: int, cfg: AssociationConfi
     masks = view.masks
     if proj.n_points is not None and proj.n_points[i] < cfg.min_points:
         return "occluded", "too-small"
+    if photo == "fragment":
+        # too small to judge from the colours and too small to be an object of its own
+        # (ChangeConfig.photo_fragment_points): kept as it was
+        return "occluded", "fragment"
     if photo == "in-place":
         # judged from enough visible points that show it where it was (photo_change.py): seen,
         # even when most of its projection is hidden (measured on seed 100: 3 such instances)
@@ -223,8 +229,10 @@ def associate(
     function (n,) int mask indices -> (n, D): then only the masks that reach the semantic stage
     are embedded (ours: the learned embedder is most of an update's time, docs/update.md), and
     ``Association.s_semantic`` is NaN in the rows never needed.
-    photo: instance id -> photometric verdict ("in-place" / "gone") of a view without depth
-    (photo_change.py); instances in place stay out of the semantic stage, rule 5 uses it.
+    photo: instance id -> photometric verdict ("in-place" / "present" / "gone", or "fragment":
+    not judged and under ``ChangeConfig.photo_fragment_points``) of a view without depth
+    (photo_change.py); instances in place and fragments stay out of the semantic stage, rule 5
+    uses it.
     """
     masks: MaskCandidates = view.masks if view.masks is not None else MaskCandidates.empty(
         view.camera.height, view.camera.width)
@@ -270,7 +278,7 @@ def associate(
     if cfg.exclude_present and view.depth is not None:
         in_place = {k for k in range(K) if unmatched_status(view, proj, k, cfg) == ("static", "present-depth")}
     elif cfg.exclude_present:
-        in_place = {k for k in range(K) if photo.get(int(ids[k])) == "in-place"}
+        in_place = {k for k in range(K) if photo.get(int(ids[k])) in ("in-place", "fragment")}
 
     def run_stages(nodes: list[int], prefix: str) -> None:
         free_k = [k for k in range(K) if matched_node[k] < 0]

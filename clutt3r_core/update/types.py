@@ -268,6 +268,25 @@ class ChangeConfig:
     max_extent_ratio: float = 1.3
     """Ours: a mask whose depth points span more than this x the instance's diameter (+1 cm)
     cannot be that instance; not registered (saves time)."""
+    recheck_hidden: bool = True
+    """Ours: instances the in-place test could not judge (hidden) are tested again with the
+    instances found moved left out of the z-buffer (a moved object no longer hides what stood
+    behind its old place). Measured on hard_700 (seeds 300/500/700 with depth, diagnosis
+    round): a static instance wholly hidden behind the pushed object's old place was left
+    hidden, registered onto a neighbour's mask and flagged displaced; re-checked, 85 of its 87
+    compared points agree with the new depth (in place)."""
+    max_fit_overlap: float = 0.15
+    """Ours: two objects cannot take the same surface. While the fits are assigned (greedily,
+    best first), a fit whose moved points lie within ``in_place_tol`` of an already accepted
+    fit's moved points for more than this fraction is rejected; for a hidden instance (no
+    evidence that it moved) the in-place instances' stored points count too. Measured on the
+    accepted fits of seeds 300/500/700 (33 pairs): right fits overlap other fits at 0.00 and,
+    for hidden instances, in-place points at 0.00; hard_502's removed instance registered onto
+    a part of the displaced object's mask overlaps that object's fit at 0.58 (reported
+    displaced instead of removed), hard_300's and hard_700's hidden static instances fitted to
+    an in-place object's mask overlap its points at 0.28 / 0.79. Moved instances are not
+    tested against in-place points: intermediate_300's right fit (a small object pushed into a
+    cluster) overlaps them at 0.54 within 1 cm."""
     use_photo: bool = True
     """Ours, views without depth (or ``use_depth`` False; ``update/photo_change.py``): every
     stored point the new camera sees predicts its pixel's colour; an instance whose informative
@@ -312,6 +331,15 @@ class ChangeConfig:
     500-503: static fragments of 62-192 points seen by 13-17 informative pixels, agreeing at
     0.88-0.92, not judged, then matched by appearance to another mask); checked afterwards on
     the fresh seeds 700-702: the same results as with 20 (docs/update.md)."""
+    photo_fragment_points: int = 150
+    """Ours, views without depth: an instance the photometric test cannot judge (fewer than
+    ``photo_min_points`` informative pixels) with fewer than this many stored points is a
+    segmentation fragment: kept as it is (``occluded``), out of the semantic stage of the
+    association, never ``removed``. Measured on seeds 300/500/700 without depth (33 pairs): the
+    remaining static flags were such fragments (62, 77, 111 points, 2-6 informative pixels)
+    matched by appearance to another object's mask or judged removed by rule 5; no removed or
+    displaced object's main instance was both unjudged and under 274 points (the smallest
+    removed one, 89 points, was judged from 53 pixels)."""
     photo_min_informative: float = 0.25
     """Ours: ... and at least this fraction of its visible points informative (sample_seq1's
     black clamp: 0.21)."""
@@ -325,6 +353,14 @@ class ChangeConfig:
     Measured on seeds 100-103 without depth: the 8 displaced objects found agree at 0.23-0.95
     at the fitted pose against 0.00-0.65 at the old one (all higher), the 2 static instances
     fitted to another mask at 0.25 / 0.54 against 0.56 / 0.70 (lower)."""
+    hidden_by_moved_fraction: float = 0.5
+    """Ours, views without depth: an instance reported removed whose visible projection is, for
+    at least this fraction of its pixels, covered by a displaced instance at its new pose (in
+    front by ``AssociationConfig.nearer_margin``) is ``occluded`` instead (its old place is
+    hidden by the moved object, not seen empty; the photometric test saw the moved object's
+    colours there). Measured on hard_700 without depth (seeds 300/500/700): a static object the
+    pushed one now stands in front of (with depth 336 of its 346 visible points have something
+    nearer) was reported removed. 1.0 switches it off."""
     photo_gone_fraction: float = 0.35
     """Ours: at or below this = its old place shows something else; see ``use_photo``. An
     unmatched instance above it (and not hidden) is static: seeds 100-103, static instances

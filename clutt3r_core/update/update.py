@@ -56,7 +56,8 @@ class UpdateDetails:
     photo: PhotoCheck | None = None
     """The photometric in-place test when it ran (no depth cues, ``ChangeConfig.use_photo``)."""
     photo_verdict: dict | None = None
-    """instance id -> "in-place" / "present" (between) / "gone", for the judged instances."""
+    """instance id -> "in-place" / "present" (between) / "gone" for the judged instances,
+    "fragment" for unjudged ones under ``ChangeConfig.photo_fragment_points``."""
 
 
 def _moved(res, centroid: np.ndarray, iou_before: float, config: UpdateConfig) -> bool:
@@ -71,6 +72,34 @@ def _moved(res, centroid: np.ndarray, iou_before: float, config: UpdateConfig) -
 def _iou_without(a: np.ndarray, b: np.ndarray, ignore: np.ndarray) -> float:
     keep = ~ignore
     return mask_iou(a & keep, b & keep)
+
+
+def _hidden_by_moved(records: list[InstanceUpdate], state: SceneState, proj_all: Projection, cam, voxel: float,
+                     scale: float, fraction: float, margin: float) -> list[InstanceUpdate]:
+    """Views without depth (``ChangeConfig.hidden_by_moved_fraction``): an instance reported
+    removed whose visible projection is now mostly covered by a displaced instance at its new
+    pose, nearer to the camera by ``margin`` or more, is hidden there, not known to be gone:
+    occluded ("hidden-by-moved"). The photometric test and rule 5 compare its old place with
+    the image before any pose is known, so they see the moved object's colours there."""
+    moved = {r.instance: r.T_world for r in records if r.status == "displaced" and r.T_world is not None}
+    gone = [r for r in records if r.status == "removed"]
+    if not moved or not gone:
+        return records
+    pts = state.points.astype(np.float64).copy()
+    for k, T in moved.items():
+        sel = state.instance == k
+        pts[sel] = pts[sel] @ T[:3, :3].T + T[:3, 3]
+    after = project_instances(pts.astype(np.float32), state.instance, np.array(sorted(moved), np.int32), cam, voxel,
+                              scale)
+    out = []
+    for r in records:
+        if r.status == "removed":
+            vis = proj_all.label == r.instance
+            n = int(np.count_nonzero(vis))
+            if n and np.count_nonzero(after.depth[vis] < proj_all.depth[vis] - margin) >= fraction * n:
+                r = replace(r, status="occluded", match=(r.match + "+" if r.match else "") + "hidden-by-moved")
+        out.append(r)
+    return out
 
 
 def update_scene(
@@ -124,6 +153,8 @@ def update_scene(
                 f = pc.fraction(k)
                 photo[k] = ("in-place" if f >= cc.photo_in_place_fraction
                             else "gone" if f <= cc.photo_gone_fraction else "present")
+            elif np.count_nonzero(state.instance == k) < cc.photo_fragment_points:
+                photo[k] = "fragment"  # ChangeConfig.photo_fragment_points
         if details is not None:
             details.photo, details.photo_verdict = pc, photo
     assoc = associate(view, proj_all, state.embeddings, mask_emb, config.association, tree=tree, photo=photo)
@@ -240,6 +271,9 @@ def update_scene(
             else:
                 records.append(InstanceUpdate(k, "displaced", iou[k], res.iou_after, res.T_world, mid,
                                               assoc.match[i], pose=res))
+    if dc is None and cc.hidden_by_moved_fraction < 1.0:
+        records = _hidden_by_moved(records, state, proj_all, cam, voxel, scale, cc.hidden_by_moved_fraction,
+                                   config.association.nearer_margin)
     taken = set() if dc is None else {f.mask_index for k, f in dc.fits.items()}
     new = tuple(NewMask(int(masks.ids[mi]), int(np.count_nonzero(masks.masks[mi])))
                 for mi in assoc.new_masks if mi not in taken)
