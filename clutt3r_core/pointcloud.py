@@ -16,13 +16,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Literal, Sequence
+from typing import TYPE_CHECKING, Literal, Sequence
 
 import numpy as np
 
 from clutt3r_core.errors import SceneError
 from clutt3r_core.normals import estimate_normals
 from clutt3r_core.scene import View
+
+if TYPE_CHECKING:
+    from clutt3r_core.surface import SurfaceChoice
 
 __all__ = ["PointCloudConfig", "FusedCloud", "PixelVoxelMaps", "fuse_views", "auto_stride"]
 
@@ -62,11 +65,22 @@ class PointCloudConfig:
     voxels of 5 mm span about a 2 cm disc, enough to average depth noise while keeping
     object edges)."""
 
-    surface: Literal["voxel-mean", "tsdf"] = "voxel-mean"
+    surface: Literal["voxel-mean", "tsdf", "auto"] = "auto"
     """How the raw points of all views become the fused surface. ``voxel-mean`` (Sec. IV): each
     kept voxel is the mean of the raw points in it. ``tsdf`` (ours, issue 13): the raw points are
     first moved onto the views' consensus surface, the zero crossing of a truncated signed
-    distance field averaged over the views (``clutt3r_core.surface``), then voxel-averaged."""
+    distance field averaged over the views (``clutt3r_core.surface``), then voxel-averaged.
+    ``auto`` (ours): ``tsdf`` when the views' depths disagree by at least ``surface_auto_sigma``
+    (measured from the data, ``surface.depth_disagreement``), else ``voxel-mean``; the fused
+    cloud records what was measured and chosen (``FusedCloud.surface``)."""
+
+    surface_auto_sigma: float = 0.001
+    """With ``surface="auto"``: the views' depth disagreement (one view's noise, metres) from which
+    the surface estimate runs (ours, issue 13). Measured (``surface.depth_disagreement``): clean
+    1 mm-quantised generated depth 0.31-0.32 mm, RealSense-like generated depth 2.4-2.8 mm, the
+    real sample_seq1 5.5 mm and sample_seq4 4.0 mm; 1 mm (a fifth of a voxel) lies between with
+    a factor of 2.4 to each side. Below it the estimate gains little (docs/benchmark/strict-iou.md)
+    and costs about 2.5x the fusion's time."""
 
     surface_min_points: int = 2
     """With ``surface="tsdf"``: moved points a voxel needs to be kept, or one point moved from a
@@ -77,8 +91,10 @@ class PointCloudConfig:
     (first version of the estimate)."""
 
     def __post_init__(self) -> None:
-        if self.surface not in ("voxel-mean", "tsdf"):
-            raise SceneError(f"PointCloudConfig.surface must be 'voxel-mean' or 'tsdf', got {self.surface!r}")
+        if self.surface not in ("voxel-mean", "tsdf", "auto"):
+            raise SceneError(f"PointCloudConfig.surface must be 'voxel-mean', 'tsdf' or 'auto', got {self.surface!r}")
+        if not self.surface_auto_sigma >= 0:
+            raise SceneError(f"PointCloudConfig.surface_auto_sigma must be >= 0, got {self.surface_auto_sigma}")
         if not self.voxel_size > 0:
             raise SceneError(f"PointCloudConfig.voxel_size must be > 0, got {self.voxel_size}")
         if self.min_points < 1:
@@ -175,6 +191,9 @@ class FusedCloud:
             ``normal_knn``, or N when smaller), kept so that the super-voxel graph does not
             query them again (ours, issue 13: a second k-NN query was a quarter of the
             super-voxel stage). None when not computed.
+        surface: with ``PointCloudConfig.surface`` "tsdf" or "auto", what the fusion measured and
+            did (``clutt3r_core.surface.SurfaceChoice``: the views' depth disagreement, the
+            method used, the noise that limited the moves); None with "voxel-mean".
     """
 
     points: np.ndarray
@@ -188,6 +207,7 @@ class FusedCloud:
     visibility: np.ndarray | None = field(default=None, repr=False)
     camera_centres: np.ndarray | None = field(default=None, repr=False)
     neighbours: np.ndarray | None = field(default=None, repr=False)
+    surface: SurfaceChoice | None = None
 
     def __post_init__(self) -> None:
         pts = np.asarray(self.points, dtype=np.float32)
@@ -388,12 +408,14 @@ def fuse_views(views: Sequence[View], cfg: PointCloudConfig = PointCloudConfig()
     C = np.concatenate(col_list)
     col_list.clear()
     min_points = cfg.min_points
-    if cfg.surface == "tsdf":  # ours (issue 13): raw points moved onto the views' consensus surface
-        from clutt3r_core.surface import snap_raw_points
+    surface = None
+    if cfg.surface != "voxel-mean":  # ours (issue 13): raw points moved onto the views' consensus surface
+        from clutt3r_core.surface import surface_points
 
         # it drops the points of voxels that fail its own occupancy rule (clutt3r_core.surface)
-        P, C, pix_list, offsets = snap_raw_points(views, P, C, pix_list, offsets, strides, cfg)
-        min_points = 1
+        P, C, pix_list, offsets, surface = surface_points(views, P, C, pix_list, offsets, strides, cfg)
+        if surface.method == "tsdf":
+            min_points = 1
 
     # Integer voxel keys packed into one int64, then grouped.
     if len(P):
@@ -450,4 +472,5 @@ def fuse_views(views: Sequence[View], cfg: PointCloudConfig = PointCloudConfig()
         visibility=vis,
         camera_centres=centres,
         neighbours=neighbours,
+        surface=surface,
     )

@@ -17,6 +17,7 @@ from clutt3r_core.surface import SurfaceParams, smooth_depth, snap_to_surface
 from tests.core._geometry_scenes import BOX_MAX, BOX_MIN, look_at, make_views
 
 TSDF = PointCloudConfig(surface="tsdf")
+PLAIN = PointCloudConfig(surface="voxel-mean")
 
 
 def _noisy(views: list[View], sigma: float, seed: int = 0) -> list[View]:
@@ -39,7 +40,7 @@ def test_noisy_table_fuses_to_a_thin_surface():
     """Depth noise spreads the plain fusion over several voxels across the table; the consensus
     surface is much thinner (the off-surface cells of issue 13)."""
     views = _noisy(make_views(3, 320, 240, 400.0), 0.003)
-    plain = fuse_views(views)
+    plain = fuse_views(views, PLAIN)
     tsdf = fuse_views(views, TSDF)
     zp = plain.points[_table_far_from_box(plain.points), 2]
     zt = tsdf.points[_table_far_from_box(tsdf.points), 2]
@@ -66,7 +67,7 @@ def test_clean_depth_stays_on_the_surface():
     assert np.percentile(dist, 99) < 0.0015, np.percentile(dist, [50, 99, 100])
     # nothing lost: the table and the box top cover as many 10 mm columns as in the plain fusion
     # (voxel counts differ: the plain fusion splits points at exactly z = 0 over two voxel layers)
-    plain = fuse_views(views)
+    plain = fuse_views(views, PLAIN)
     cols = lambda c: len(np.unique(np.floor(c.points[:, :2] / 0.01).astype(int), axis=0))  # noqa: E731
     assert cols(cloud) >= 0.98 * cols(plain)
 
@@ -152,15 +153,15 @@ def test_smooth_depth_keeps_edges_and_averages_planes():
 
 
 def test_config_switch_and_presets():
-    with pytest.raises(SceneError):
+    with pytest.raises(SceneError, match="'voxel-mean', 'tsdf' or 'auto'"):
         PointCloudConfig(surface="mls")  # type: ignore[arg-type]
     with pytest.raises(SceneError):
         SurfaceParams(truncation=0.0)
     with pytest.raises(SceneError):
         PointCloudConfig(surface_min_points=0)
-    # off in both presets for now (docs/benchmark/strict-iou.md: worse on clean depth, 2.5x the
-    # fusion's time); once ours switches it on it must be listed in ADDITIONS
+    # ours runs it when the depth is noisy ("auto"), the paper never: listed in ADDITIONS
     assert PRESETS["paper"].pointcloud.surface == "voxel-mean"
+    assert SegmentConfig().pointcloud.surface == "auto"
     in_additions = any(f == "pointcloud.surface" for a in ADDITIONS for f, _, _ in a.fields)
     assert in_additions == (SegmentConfig().pointcloud.surface != "voxel-mean")
 
@@ -168,21 +169,21 @@ def test_config_switch_and_presets():
 def test_views_without_any_depth_give_an_empty_cloud():
     """As the plain fusion: no raw point, no voxel (the pipeline's depth check then names the views)."""
     views = [dataclasses.replace(v, depth=np.full_like(v.depth, np.nan)) for v in make_views(2)]
-    assert fuse_views(views, TSDF).num == 0 == fuse_views(views).num
+    assert fuse_views(views, TSDF).num == 0 == fuse_views(views, PLAIN).num
 
 
 def test_the_noisy_depth_preset_is_ours_with_the_surface_estimate():
-    """`--preset noisy-depth` (segment) and the bench method `ours-noisy-depth` are ours with only the
-    fusion switched, so a comparison between them measures the surface estimate alone."""
+    """`--preset noisy-depth` (segment) and the bench method `ours-noisy-depth` are ours with the
+    surface estimate forced on instead of decided by the measured noise ("auto"), nothing else."""
     from clutt3r_core.evaluation.methods import method_config
 
     nd = PRESETS["noisy-depth"]
     assert nd.pointcloud.surface == "tsdf"
-    assert dataclasses.replace(nd, pointcloud=dataclasses.replace(nd.pointcloud, surface="voxel-mean")) == SegmentConfig()
+    assert dataclasses.replace(nd, pointcloud=dataclasses.replace(nd.pointcloud, surface="auto")) == SegmentConfig()
     assert method_config("ours-noisy-depth") == nd
 
 
-@pytest.mark.parametrize("surface", ["voxel-mean", "tsdf"])
+@pytest.mark.parametrize("surface", ["voxel-mean", "tsdf", "auto"])
 def test_a_scene_too_large_to_index_is_refused_by_both_fusions(surface):
     """Poses 100 km apart (a unit mix-up): one clear SceneError, from the shared voxel keys,
     before the surface estimate does any work on a grid it cannot index."""
