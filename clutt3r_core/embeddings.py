@@ -111,38 +111,37 @@ class AppearanceEmbedder:
         out = np.zeros((m, self.dim), np.float32)
         if m == 0:
             return out
-        hsv = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2HSV_FULL).reshape(-1, 3)
-        # Bin indices through lookup tables over the 8-bit channels (same formulas,
-        # evaluated once per possible value instead of once per pixel).
-        hv, sv = np.meshgrid(np.arange(256), np.arange(256), indexing="ij")
-        hb = np.where(sv >= self.min_saturation, hv * self.hue_bins // 256, self.hue_bins)
-        lut_joint = (hb * self.sat_bins + sv * self.sat_bins // 256).astype(np.int32).reshape(-1)
-        lut_v = ((self.hue_bins + 1) * self.sat_bins + np.arange(256) * self.val_bins // 256).astype(np.int32)
-        joint = lut_joint[(hsv[:, 0].astype(np.int32) << 8) | hsv[:, 1]]
-        vb = lut_v[hsv[:, 2]]
+        if not isinstance(masks, MaskCandidates):
+            masks = MaskCandidates(np.asarray(masks, bool), np.arange(m))
+        hsv = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2HSV_FULL)
+        h, s, v = cv2.split(hsv)
         del hsv
-        d = self.dim
-        # Histograms per distinct set of containing masks (a few hundred codes instead of
-        # a gather over every mask pixel), summed into each mask by bits.T @ per-code
-        # histograms. Counts are integers, so the result is exactly the per-mask count.
-        if isinstance(masks, MaskCandidates):
-            label, bits = masks.codes.reshape(-1), masks.bits
-        else:
-            from clutt3r_core.segmentation.trees import mask_codes
-
-            label, bits = mask_codes(np.asarray(masks).reshape(m, -1))
+        # Per-pixel bins as 8-bit (16-bit for wide histograms) planes through lookup tables
+        # over the 8-bit channels: the same formulas, evaluated once per possible value.
+        a = np.arange(256)
+        nj, nv = (self.hue_bins + 1) * self.sat_bins, self.val_bins
+        codes, bits = masks.codes, masks.bits
         c = len(bits)
-        # one reused int32 key array (int64 temporaries were 3 x 16 MiB per 1080p view)
-        key = label.astype(np.int32 if c * d < 2**31 else np.int64)
-        del label
-        key *= d
-        key += joint
-        per_code = np.bincount(key, minlength=c * d).astype(np.float64)
-        key -= joint
-        key += vb
-        per_code += np.bincount(key, minlength=c * d)
-        hist = bits.T.astype(np.float64) @ per_code.reshape(c, d)
-        hist = hist.reshape(m, d)
+        # one depth for every plane (calcHist wants that): 8-bit, 16-bit, or float32 (exact:
+        # fewer than 2^24 sets and bins)
+        top = max(nj, nv, c)
+        dt = np.uint8 if top <= 1 << 8 else np.uint16 if top <= 1 << 16 else np.float32
+        joint = cv2.LUT(h, (a * self.hue_bins // 256 * self.sat_bins).astype(dt))  # hue bin * sat_bins
+        grey = cv2.LUT(s, (a < self.min_saturation).astype(np.uint8)).view(bool)
+        np.copyto(joint, dt(self.hue_bins * self.sat_bins), where=grey)  # the grey row
+        joint += cv2.LUT(s, (a * self.sat_bins // 256).astype(dt))
+        vq = cv2.LUT(v, (a * self.val_bins // 256).astype(dt))
+        # Histograms per distinct set of containing masks (the candidates' code image: a
+        # few hundred sets instead of a gather over every mask pixel), as 2D histograms of
+        # (set, bin), summed into each mask by bits.T @ per-set histograms. Counts are
+        # integers (exact in calcHist's float32 below 2^24 per bin), so the result is
+        # exactly the per-mask count.
+        codes = codes.astype(dt, copy=False)
+        per_code = np.concatenate([
+            cv2.calcHist([codes, joint], [0, 1], None, [c, nj], [0, c, 0, nj]),
+            cv2.calcHist([codes, vq], [0, 1], None, [c, nv], [0, c, 0, nv]),
+        ], axis=1).astype(np.float64)
+        hist = bits.T.astype(np.float64) @ per_code
         hist = np.sqrt(hist)
         norm = np.linalg.norm(hist, axis=1, keepdims=True)
         np.divide(hist, norm, out=hist, where=norm > 0)

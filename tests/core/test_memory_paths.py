@@ -95,3 +95,22 @@ def test_appearance_histograms_equal_their_definition():
     masks[3] = False  # an empty mask: zero descriptor
     emb = AppearanceEmbedder()
     np.testing.assert_array_equal(emb.embed_masks(rgb, masks), _naive_histograms(emb, rgb, masks))
+
+
+@pytest.mark.parametrize("cfg, n_masks", [
+    ({}, 5),                                                   # 8-bit planes and codes
+    ({"hue_bins": 64, "sat_bins": 8, "val_bins": 300}, 20),    # 16-bit planes
+    ({"hue_bins": 300, "sat_bins": 256, "min_saturation": 0}, 3),  # more than 2^16 bins: float32 planes
+])
+def test_appearance_histograms_of_candidates_equal_their_definition(cfg, n_masks):
+    """The histograms from the candidates' code image (2D histograms of (set, bin)) are the
+    definition's, for every plane depth; a stack and the candidates give the same rows."""
+    from clutt3r_core.scene import MaskCandidates
+
+    rng = np.random.default_rng(5)
+    rgb = rng.integers(0, 256, (30, 40, 3), dtype=np.uint8)
+    masks = rng.random((n_masks, 30, 40)) < 0.4
+    emb = AppearanceEmbedder(**cfg)
+    want = _naive_histograms(emb, rgb, masks)
+    np.testing.assert_array_equal(emb.embed_masks(rgb, MaskCandidates(masks, np.arange(n_masks))), want)
+    np.testing.assert_array_equal(emb.embed_masks(rgb, masks), want)
