@@ -294,6 +294,12 @@ def main() -> None:
                     help="PoseConfig.tilt_starts: tipped-over start placements for the RGB-only fit")
     ap.add_argument("--no-photo", action="store_true",
                     help="ChangeConfig.use_photo=False: without depth, the IoU test and rule 5's colour-and-mask test")
+    ap.add_argument("--probe-iterations", type=int, default=PoseConfig().probe_iterations,
+                    help="PoseConfig.probe_iterations (silhouette fit: steps per yaw start)")
+    ap.add_argument("--coarse-iterations", type=int, default=PoseConfig().coarse.iterations,
+                    help="PoseConfig.coarse.iterations (silhouette fit, probe steps included)")
+    ap.add_argument("--fine-iterations", type=int, default=PoseConfig().fine.iterations,
+                    help="PoseConfig.fine.iterations (silhouette fit)")
     ap.add_argument("--tag", default="", help="suffix of results_<tag>.json")
     a = ap.parse_args()
     cfg = UpdateConfig(change=ChangeConfig(verify=not a.no_verify, min_fit_iou=a.min_fit_iou,
@@ -302,6 +308,9 @@ def main() -> None:
                                     refine_registration=a.refine_registration,
                                     registration_photo_weight=a.photo_weight,
                                     registration_tie_margin=a.tie_margin, tilt_starts=a.tilt_starts,
+                                    probe_iterations=a.probe_iterations,
+                                    coarse=replace(PoseConfig().coarse, iterations=a.coarse_iterations),
+                                    fine=replace(PoseConfig().fine, iterations=a.fine_iterations),
                                     **({"yaw_starts_deg": tuple(float(x) for x in a.yaw_starts.split(","))}
                                        if a.yaw_starts else {})))
     a.out.mkdir(parents=True, exist_ok=True)
