@@ -258,6 +258,7 @@ def load_bop_scene(
         depth = None
         if dpath.is_file():
             depth = read_depth_mm(dpath, (h, w), scale=scale * 0.001)
+            depth.setflags(write=False)  # View takes a frozen depth map as is (no copy)
         elif im in initial_ids:
             raise SceneFileError(dpath, f"initial image {im} has no depth file")
         masks = None

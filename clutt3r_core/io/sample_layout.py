@@ -197,6 +197,8 @@ def load_sample_layout(root: str | Path, *, load_masks: bool = True, load_gt: bo
         hw = (cam.height, cam.width)
         rgb = read_rgb(ipath, hw)
         depth = read_depth_mm(dpath, hw) if has_depth[frame] else None
+        if depth is not None:
+            depth.setflags(write=False)  # View takes a frozen depth map as is (no copy)
         masks = None
         if load_masks and mask_dir.is_dir():
             items = masks_by_frame.get(frame, [])

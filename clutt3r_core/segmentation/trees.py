@@ -112,7 +112,7 @@ def subtree_leaves(parent: np.ndarray, is_leaf: np.ndarray) -> list[np.ndarray]:
 def mask_codes(flat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Factorise the pixels of a (M, P) bool mask stack by the set of masks containing them.
 
-    Returns (label (P,) int32 in 0..C-1, bits (C, M) bool): pixel p lies in mask m iff
+    Returns (label (P,) uint8, uint16 or int64 in 0..C-1, bits (C, M) bool): pixel p lies in mask m iff
     ``bits[label[p], m]`` (``scene.encode_masks``, which ``MaskCandidates`` stores).
     M = 0 gives one empty code.
     """

@@ -97,3 +97,27 @@ def test_bad_candidates_are_refused():
         MaskCandidates(np.zeros((2, 3, 3), bool), [1, 2], [0.5])
     e = MaskCandidates.empty(4, 5)
     assert len(e) == 0 and e.shape == (4, 5) and e.masks.shape == (0, 4, 5) and e.areas().shape == (0,)
+
+
+def test_view_depth_is_copied_unless_frozen_with_nan_holes():
+    from clutt3r_core.scene import Camera, View
+
+    cam = Camera(np.array([[10.0, 0, 2], [0, 10.0, 1.5], [0, 0, 1]]), 4, 3, np.eye(4))
+    rgb = np.zeros((3, 4, 3), np.uint8)
+    d = np.full((3, 4), 0.5, np.float32)
+    d[0, 0], d[1, 1] = 0.0, -1.0
+    v = View(0, rgb, cam, d)
+    assert v.depth is not d and d[0, 0] == 0.0 and d.flags.writeable  # the caller's array is untouched
+    assert np.isnan(v.depth[0, 0]) and np.isnan(v.depth[1, 1]) and not v.depth.flags.writeable
+    frozen = v.depth.copy()
+    frozen.setflags(write=False)
+    assert View(0, rgb, cam, frozen).depth is frozen  # a loader's frozen map with NaN holes: no copy
+    bad = d.copy()
+    bad.setflags(write=False)  # frozen but with a 0 and a negative: still made NaN, in a copy
+    got = View(0, rgb, cam, bad).depth
+    assert got is not bad and np.isnan(got[0, 0]) and np.isnan(got[1, 1]) and bad[0, 0] == 0.0
+    inf = frozen.copy()
+    inf[2, 2] = np.inf
+    inf.setflags(write=False)
+    with pytest.raises(SceneError, match="inf"):
+        View(0, rgb, cam, inf)
