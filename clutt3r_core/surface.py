@@ -135,46 +135,52 @@ class _SmoothedDepth:
     the (2r + 1)^2 window of the nearest pixel when that window is full and its depths scatter less
     than ``edge_std`` metres about the plane (the white part of the sensor noise averages out, and
     the plane's slope corrects for the distance to the pixel centre, up to 1 mm on a slanted
-    surface); the raw depth of the nearest pixel elsewhere (depth edges, holes). Integral images:
-    O(1) per read."""
+    surface); the raw depth of the nearest pixel elsewhere (depth edges, holes).
+
+    The plane of every pixel's window is fitted once, from integral images (O(1) per pixel), and
+    stored as (depth at the pixel centre, slope along u, slope along v); a raw pixel is the plane
+    (depth, 0, 0). A read is then one gather of three numbers: the surface estimate reads each
+    view 4 times at every candidate voxel, more often than the view has pixels."""
 
     def __init__(self, z: np.ndarray, size: int, edge_std: float):
         self.z = np.asarray(z, np.float32)
         self.r = max(0, (int(size) - 1) // 2)
-        self.edge_var = float(edge_std) ** 2
-        if self.r:
-            ok = np.isfinite(self.z)
-            zf = np.where(ok, self.z, 0.0).astype(np.float64)
-            rows, cols = np.indices(zf.shape, dtype=np.float64)
-            # the five integral images side by side: one gather per window corner reads all five
-            self.sums = np.stack([_box_sums(x, self.r).reshape(-1)
-                                  for x in (ok.astype(np.float64), zf, zf * zf, cols * zf, rows * zf)], axis=1)
-            self.wp = zf.shape[1] + 2 * self.r + 1
+        if not self.r:
+            return
+        h, w = self.z.shape
+        k = 2 * self.r + 1
+        n = float(k * k)
+        ok = np.isfinite(self.z)
+        zf = np.where(ok, self.z, 0.0).astype(np.float64)
+        rows, cols = np.indices(zf.shape)
+        s0, s1, s2, su, sv = (self._box(_box_sums(x, self.r), k, h, w)
+                              for x in (ok.astype(np.float64), zf, zf * zf, cols * zf, rows * zf))
+        full = s0 > n - 0.5
+        mean = s1 / n
+        m2 = n * (n - 1.0) / 12.0  # sum of squared offsets along one axis over the window
+        gu = (su - cols * s1) / m2
+        gv = (sv - rows * s1) / m2
+        resid = s2 / n - mean * mean - (gu * gu + gv * gv) * (m2 / n)
+        d = self.z.astype(np.float64)
+        smooth = full & ok & (resid < float(edge_std) ** 2)
+        self.plane = np.stack([np.where(smooth, mean, d), np.where(smooth, gu, 0.0), np.where(smooth, gv, 0.0)],
+                              axis=-1).reshape(-1, 3)
+
+    @staticmethod
+    def _box(c: np.ndarray, k: int, h: int, w: int) -> np.ndarray:
+        """(h, w) sums over the k x k window of every pixel from the padded integral image ``c``."""
+        return c[k : k + h, k : k + w] - c[:h, k : k + w] - c[k : k + h, :w] + c[:h, :w]
 
     def at(self, v: np.ndarray, u: np.ndarray) -> np.ndarray:
         """(M,) float64 depth at sub-pixel positions row ``v``, column ``u`` (M,) whose nearest
         pixel is inside the image."""
         row = np.rint(v).astype(np.intp)
         col = np.rint(u).astype(np.intp)
-        d = np.take(self.z.reshape(-1), row * self.z.shape[1] + col).astype(np.float64)
+        flat = row * self.z.shape[1] + col
         if not self.r:
-            return d
-        k = 2 * self.r + 1
-        n = float(k * k)
-        # corners of the window of pixel (row, col) in the padded integral image, as flat indices
-        f00 = row * self.wp + col
-        f01, f10, f11 = f00 + k, f00 + k * self.wp, f00 + k * self.wp + k
-        c = self.sums
-        box = c[f11] - c[f01] - c[f10] + c[f00]
-        s0, s1, s2, su, sv = box.T
-        full = s0 > n - 0.5
-        mean = s1 / n
-        m2 = n * (n - 1.0) / 12.0  # sum of squared offsets along one axis over the window
-        gu = (su - col * s1) / m2
-        gv = (sv - row * s1) / m2
-        resid = s2 / n - mean * mean - (gu * gu + gv * gv) * (m2 / n)
-        smooth = full & np.isfinite(d) & (resid < self.edge_var)
-        return np.where(smooth, mean + gu * (u - col) + gv * (v - row), d)
+            return np.take(self.z.reshape(-1), flat).astype(np.float64)
+        p = np.take(self.plane, flat, axis=0)
+        return p[:, 0] + p[:, 1] * (u - col) + p[:, 2] * (v - row)
 
 
 def smooth_depth(z: np.ndarray, size: int, edge_std: float) -> np.ndarray:
