@@ -111,7 +111,7 @@ def project_instances(points: np.ndarray, instance: np.ndarray, ids: np.ndarray,
         depth[s.v0 : s.v0 + s.h, s.u0 : s.u0 + s.w] = s.zbuf
     own = np.zeros(len(ids), np.int64)
     for i, k in enumerate(ids):
-        sk = splat(points[instance == k], camera, voxel, scale)
+        sk = splat(points[instance == k], camera, voxel, scale, with_points=False)
         own[i] = int(np.isfinite(sk.zbuf).sum()) if sk.h and sk.w else 0
     vis = np.array([int(np.count_nonzero(label == k)) for k in ids], np.int64)
     npts = np.array([int(np.count_nonzero(instance == k)) for k in ids], np.int64)

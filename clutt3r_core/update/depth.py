@@ -97,7 +97,7 @@ def place_check(points: np.ndarray, instance: np.ndarray, ids: np.ndarray, camer
     ids = np.asarray(ids, np.int32)
     sel = np.isin(instance, ids)
     pts, lab = points[sel], instance[sel]
-    s = splat(pts, camera, voxel)
+    s = splat(pts, camera, voxel, with_points=False)
     K = len(ids)
     agree, farther, nearer, visible = (np.zeros(K, np.int64) for _ in range(4))
     if not (s.h and s.w):
@@ -126,7 +126,7 @@ def explained_pixels(points: np.ndarray, instance: np.ndarray, ids: np.ndarray, 
     out = np.zeros((H, W), bool)
     if not len(ids):
         return out
-    s = splat(points[np.isin(instance, ids)], camera, voxel)
+    s = splat(points[np.isin(instance, ids)], camera, voxel, with_points=False)
     if s.h and s.w:
         local = np.isfinite(s.zbuf) & (np.abs(s.crop(depth) - s.zbuf) <= tol)
         out[s.v0 : s.v0 + s.h, s.u0 : s.u0 + s.w] = local

@@ -136,7 +136,7 @@ def _placements(problem: PoseProblem, cfg: PoseConfig) -> tuple[np.ndarray, np.n
         t = (o + sray * d - c) if sray > 0 else initial_translation(problem, c)
         T = motion_matrix(R, c, t)
         p = pts @ T[:3, :3].T + T[:3, 3]
-        sp = splat(p, cam, problem.voxel_size, scale)
+        sp = splat(p, cam, problem.voxel_size, scale, with_points=False)
         if not (sp.h and sp.w):
             Ts.append(T)
             scores.append(0.0)
@@ -260,7 +260,7 @@ class _Solver:
         uv = torch.stack([u, v], dim=1)
         # non-differentiable selection: visibility and contour membership at the current pose
         zn = pc[:, 2].detach().numpy()
-        sp = splat(pw.detach().numpy(), pb.camera, pb.voxel_size, self.sub_scale)
+        sp = splat(pw.detach().numpy(), pb.camera, pb.voxel_size, self.sub_scale, with_points=False)
         inside = sp.centre >= 0
         cflat = np.maximum(sp.centre, 0)
         zb = sp.zbuf.reshape(-1)
@@ -304,7 +304,7 @@ class _Solver:
         """IoU of the z-buffered projection of all points at motion T with the target mask."""
         T = T @ np.linalg.inv(self.T_init)  # T is a full motion of the stored points
         p = self.all_points @ T[:3, :3].T + T[:3, 3]
-        sp = splat(p, self.pb.camera, self.pb.voxel_size)
+        sp = splat(p, self.pb.camera, self.pb.voxel_size, with_points=False)
         if not (sp.h and sp.w):
             return 0.0
         return _window_iou(sp, sp.silhouette(self.occ2d), self.mask, self.mask_area)

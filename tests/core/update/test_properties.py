@@ -37,6 +37,22 @@ def test_zbuffer_keeps_the_nearest_splat(seed, n):
 
 
 @settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 80), scale=st.floats(0.5, 4.0))
+def test_zbuffer_by_minimum_filters_equals_the_per_offset_zbuffer(seed, n, scale):
+    # with_points=False (the pose fit's fast path) must give the same z-buffer, window and
+    # centres, also for points centred outside the image whose splats reach into it
+    rng = np.random.default_rng(seed)
+    cam = camera(width=40, height=30, f=40.0)
+    pts = rng.uniform([-0.2, -0.2, 0.0], [0.2, 0.2, 0.15], (n, 3))
+    a = splat(pts, cam, voxel=0.01, scale=scale)
+    b = splat(pts, cam, voxel=0.01, scale=scale, with_points=False)
+    assert (a.v0, a.u0, a.h, a.w) == (b.v0, b.u0, b.h, b.w)
+    np.testing.assert_array_equal(a.zbuf, b.zbuf)
+    np.testing.assert_array_equal(a.centre, b.centre)
+    assert np.all(b.point == -1)
+
+
+@settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 10_000), k=st.integers(2, 6), yaw=st.floats(-180, 180), shift=st.floats(-0.1, 0.1))
 def test_apply_update_moves_rigidly_and_drops_removed(seed, k, yaw, shift):
     rng = np.random.default_rng(seed)
