@@ -317,7 +317,12 @@ class MaskCandidates:
 
     def set_counts(self) -> np.ndarray:
         """(C,) int64 pixels per set of masks."""
-        return np.bincount(self.codes.reshape(-1), minlength=len(self.bits)).astype(np.int64)
+        c, flat = len(self.bits), self.codes.reshape(-1)
+        if self.codes.dtype in (np.uint8, np.uint16) and flat.size < 1 << 24:
+            import cv2  # an 8/16-bit histogram without np.bincount's int64 copy; float32 counts exact below 2^24
+
+            return cv2.calcHist([flat], [0], None, [c], [0, c]).reshape(-1).astype(np.int64)
+        return np.bincount(flat, minlength=c).astype(np.int64)
 
     def areas(self) -> np.ndarray:
         """(M,) int64 pixel count of every mask."""
