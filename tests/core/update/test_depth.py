@@ -16,7 +16,7 @@ from clutt3r_core.update.depth import mask_points, place_check, register, start_
 from clutt3r_core.update.types import ChangeConfig, PoseConfig, StageConfig, UpdateConfig
 from clutt3r_core.update.update import UpdateDetails, update_scene
 
-from ._scenes import VOXEL, camera, render_view, two_box_scene, yaw_motion
+from ._scenes import VOXEL, box_points, camera, render_view, two_box_scene, yaw_motion
 
 FAST = UpdateConfig(pose=PoseConfig(coarse=StageConfig(50.0, 0.5, 10.0, 30), fine=StageConfig(10.0, 2.0, 1.0, 10),
                                     yaw_starts_deg=(0.0,), probe_iterations=5))
@@ -108,3 +108,69 @@ def test_registration_recovers_a_tipped_object():
     assert cKDTree(true).query(est)[0].mean() < VOXEL
     assert reg.path_cost[-1] <= np.minimum(cKDTree(true).query(scene)[0], 0.01).mean()
     assert reg.fitness > 0.9 and reg.consistency > 0.8
+
+
+def _twin_state():
+    """Two boxes of the same colours (instances 0 and 1), 13 cm apart, the second 20 % narrower
+    (so that it fits a part of the first one's surface, not the whole)."""
+    from clutt3r_core.update.state import SceneState
+
+    pts, cols, inst = two_box_scene()
+    p0, c0 = pts[inst == 0], cols[inst == 0]
+    c = p0.mean(axis=0)
+    p1 = ((p0 - c) * np.array([0.8, 0.8, 1.0], np.float32) + c + np.array([0.13, 0.02, 0.0], np.float32))
+    pts, cols = np.concatenate([p0, p1]), np.concatenate([c0, c0])
+    inst = np.concatenate([np.zeros(len(p0), np.int32), np.ones(len(p1), np.int32)])
+    v = render_view(pts, cols, inst, camera(), frame=0)
+    emb = AppearanceEmbedder().embed_masks(v.rgb, v.masks.masks)
+    return SceneState(pts, cols, inst, np.array([0, 1], np.int32), emb, "appearance-hsv")
+
+
+def test_a_removed_twin_does_not_take_a_part_mask_of_the_moved_one():
+    # instance 0 pushed, its identical twin 1 grasped; the detector also gives a part mask of
+    # the pushed box (eroded copy): the twin fits that part as well as 0 fits the whole, but
+    # the surface is taken (ChangeConfig.max_fit_overlap), so the twin is removed
+    st = _twin_state()
+    c = st.points_of(0).astype(np.float64).mean(axis=0)
+    T = yaw_motion(20.0, (0.0, -0.05, 0.0), c)
+    pts, cols, inst = st.points.copy(), st.colors, st.instance
+    pts[inst == 0] = pts[inst == 0] @ T[:3, :3].T + T[:3, 3]
+    tp, tc = _table()
+    keep = inst == 0
+    v = render_view(np.concatenate([pts[keep], tp]), np.concatenate([cols[keep], tc]),
+                    np.concatenate([inst[keep], np.full(len(tp), -1, np.int32)]), camera(**CAM), frame=8)
+    part = ndimage.binary_erosion(v.masks.masks[0], iterations=3)
+    v = View(v.frame, v.rgb, v.camera, v.depth,
+             MaskCandidates(np.concatenate([v.masks.masks, part[None]]), np.array([1, 7], np.int32)), v.name)
+    off = update_scene(st, v, UpdateConfig(change=ChangeConfig(max_fit_overlap=1.0), pose=FAST.pose))
+    assert off.record(1).status == "displaced"  # the failure the rule is for
+    res = update_scene(st, v, FAST)
+    assert res.record(0).status == "displaced" and res.record(1).status == "removed"
+
+
+def test_what_a_moved_object_hid_is_judged_again():
+    # seen from low in front, box 1 (lower) stands right behind box 0; box 0 is pushed aside:
+    # box 1 is visible now, and only a z-buffer without box 0's old place sees that
+    from clutt3r_core.update.state import SceneState
+
+    p0, c0 = box_points((-0.06, 0.0, 0.03), (0.06, 0.04, 0.06), [(200, 40, 40)] * 5)
+    p1, c1 = box_points((-0.06, 0.07, 0.02), (0.05, 0.04, 0.04), [(40, 60, 200)] * 5)
+    pts, cols = np.concatenate([p0, p1]), np.concatenate([c0, c1])
+    inst = np.concatenate([np.zeros(len(p0), np.int32), np.ones(len(p1), np.int32)])
+    v0 = render_view(pts, cols, inst, camera(), frame=0)
+    emb = AppearanceEmbedder().embed_masks(v0.rgb, v0.masks.masks)
+    st = SceneState(pts, cols, inst, np.array([0, 1], np.int32), emb, "appearance-hsv")
+    c = p0.astype(np.float64).mean(axis=0)
+    T = yaw_motion(0.0, (0.14, -0.02, 0.0), c)
+    moved = pts.copy()
+    moved[inst == 0] = moved[inst == 0] @ T[:3, :3].T + T[:3, 3]
+    tp, tc = _table()
+    low = camera(eye=(-0.06, -0.45, 0.06), target=(-0.06, 0.0, 0.03))
+    v = render_view(np.concatenate([moved, tp]), np.concatenate([cols, tc]),
+                    np.concatenate([inst, np.full(len(tp), -1, np.int32)]), low, frame=8)
+    d_off, d_on = UpdateDetails(), UpdateDetails()
+    update_scene(st, v, UpdateConfig(change=ChangeConfig(recheck_hidden=False), pose=FAST.pose), details=d_off)
+    res = update_scene(st, v, FAST, details=d_on)
+    assert 1 not in d_off.depth.in_place | d_off.depth.moved  # hidden behind 0's old place
+    assert 1 in d_on.depth.in_place and res.record(1).status == "static"
+    assert res.record(0).status == "displaced"
