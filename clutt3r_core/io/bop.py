@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from clutt3r_core.errors import SceneError, SceneFileError
-from clutt3r_core.io.images import read_depth_mm, read_mask, read_masks, read_rgb
+from clutt3r_core.io.images import io_threads, read_depth_mm, read_mask, read_masks, read_rgb
 from clutt3r_core.io.sample_layout import _read_json, _scan_masks
 from clutt3r_core.scene import Camera, GroundTruth, MaskCandidates, ObjectInfo, Scene, View, check_rigid
 
@@ -43,7 +43,6 @@ __all__ = ["load_bop_scene", "is_bop_scene", "paint_instances", "voxel_labelled_
 # (millions at 1920x1080); one point per 2 mm voxel keeps the cloud small while staying
 # far finer than any object in the benchmarks (smallest YCB/GC6D parts are ~1 cm).
 GT_POINT_VOXEL_M = 0.002
-_THREADS = 8
 # ours: the farthest camera or object from the world origin a tabletop scene can have (1 km:
 # three orders of magnitude above any real capture, far below where voxel keys overflow)
 _MAX_TRANSLATION_M = 1000.0
@@ -274,7 +273,7 @@ def load_bop_scene(
             imap = paint_instances(np.stack(vis) if vis else np.zeros((0, h, w), bool))
         return View(frame=im, rgb=rgb, camera=cam, depth=depth, masks=masks, name=ipath.name), imap
 
-    with ThreadPoolExecutor(_THREADS) as pool:
+    with ThreadPoolExecutor(io_threads()) as pool:
         loaded = list(pool.map(load_view, frame_ids))  # frame_ids is sorted: views come in frame order
     views = [v for v, _ in loaded]
     index = {v.frame: i for i, v in enumerate(views)}

@@ -37,6 +37,7 @@ from clutt3r_core.io.images import (
     NPZ_READ_ERRORS,
     atomic_write_bytes,
     atomic_write_npz,
+    io_threads,
     read_depth_mm,
     read_label_png,
     read_masks,
@@ -49,7 +50,6 @@ __all__ = ["load_sample_layout", "write_sample_layout", "is_sample_layout", "MAS
 
 MASK_NAME = re.compile(r"^mask_(\d+)_(\d+)\.png$")
 _DIGITS = re.compile(r"(\d+)(?!.*\d)")
-_THREADS = 8
 
 
 def is_sample_layout(root: str | Path) -> bool:
@@ -208,7 +208,7 @@ def load_sample_layout(root: str | Path, *, load_masks: bool = True, load_gt: bo
                                               np.array([i for i, _ in items], np.int32), hw)
         return View(frame=frame, rgb=rgb, camera=cam, depth=depth, masks=masks, name=ipath.name)
 
-    with ThreadPoolExecutor(_THREADS) as pool:
+    with ThreadPoolExecutor(io_threads()) as pool:
         views = list(pool.map(load_view, entries))
     order = np.argsort([v.frame for v in views], kind="stable")
     views = [views[i] for i in order]
@@ -323,7 +323,7 @@ def write_sample_layout(scene: Scene, root: str | Path, *, instance_tree: dict |
     (root / "depth").mkdir(exist_ok=True)
     frames_meta = []
     cam0 = scene.views[0].camera
-    with ThreadPoolExecutor(_THREADS) as pool:
+    with ThreadPoolExecutor(io_threads()) as pool:
         jobs = []
         for v in scene.views:
             img_rel = f"images/image_{v.frame:06d}.png"

@@ -96,3 +96,13 @@ def test_a_corrupt_deflate_stream_is_named(tmp_path):
     assert _sub_png_mask(np.fromfile(p, np.uint8)) is None
     with pytest.raises(SceneFileError, match="bad.png"):
         read_mask(p)
+
+
+def test_io_threads_follow_the_usable_cpus(monkeypatch):
+    monkeypatch.setattr(images.os, "sched_getaffinity", lambda pid: set(range(3)), raising=False)
+    assert images.io_threads() == 3
+    monkeypatch.setattr(images.os, "sched_getaffinity", lambda pid: set(range(64)), raising=False)
+    assert images.io_threads() == 8
+    monkeypatch.delattr(images.os, "sched_getaffinity", raising=False)
+    monkeypatch.setattr(images.os, "cpu_count", lambda: None)
+    assert images.io_threads() == 1
