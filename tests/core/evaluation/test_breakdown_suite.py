@@ -47,11 +47,13 @@ def test_every_result_has_its_breakdown(depth_run):
         assert b.ap == pytest.approx(r.ap)
         assert len(b.wrong_cells) == len(ERROR_KINDS)
         assert JobResult.from_json(json.loads(json.dumps(r.to_json()))) == r
-    # noisy depth leaves holes and spills off the clean surface; clean depth far less so
-    hole, off = ERROR_KINDS.index("hole"), ERROR_KINDS.index("off_gt")
+    # noisy depth spills off the clean surface; clean depth far less so. Holes are not compared:
+    # ours runs the surface estimate on noisy depth only (pointcloud.surface "auto"), and at 160x120
+    # it keeps more of the surface (818 GT cells without a point) than the plain fusion of clean
+    # depth does (1007: most voxels there hold fewer than 3 samples)
+    off = ERROR_KINDS.index("off_gt")
     noisy, clean = res
-    assert noisy.breakdown.wrong_cells[hole] + noisy.breakdown.wrong_cells[off] > \
-        clean.breakdown.wrong_cells[hole] + clean.breakdown.wrong_cells[off]
+    assert noisy.breakdown.wrong_cells[off] > clean.breakdown.wrong_cells[off]
 
 
 def test_report_has_the_breakdown_and_the_depth_sweep(depth_run, tmp_path):
