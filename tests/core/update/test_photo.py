@@ -133,3 +133,26 @@ def test_colours_support_the_true_motion_and_not_a_wrong_one():
     n2, at_wrong = photo_at_pose(s.points[sel], s.colors[sel], wrong, v.camera, v.rgb, VOXEL, None, g, 15.0)
     assert min(n0, n1, n2) >= 20
     assert at_true >= 0.9 and at_old <= 0.5 and at_wrong < at_true - 0.2, (at_true, at_old, at_wrong)
+
+
+def test_an_unjudged_fragment_is_kept_not_removed():
+    # a 60-point leftover of the table split off as its own instance (what a run's
+    # segmentation leaves): coloured like the table, so the photometric test cannot judge it,
+    # and no mask covers it; the previous rule 5 reports it removed, ChangeConfig.
+    # photo_fragment_points keeps it (occluded, "fragment")
+    s = _state()
+    table = np.flatnonzero(s.instance == -1)
+    d = np.linalg.norm(s.points[table, :2] - np.array([0.0, -0.08]), axis=1)
+    frag = table[np.argsort(d)[:60]]
+    inst = s.instance.copy()
+    inst[frag] = 2
+    emb = np.concatenate([s.embeddings, s.embeddings[:1]])
+    s2 = replace(s, instance=inst, instance_ids=np.array([0, 1, 2], np.int32), embeddings=emb)
+    v = _post()
+    det = UpdateDetails()
+    res = update_scene(s2, v, FAST, details=det)
+    assert det.photo_verdict.get(2) == "fragment"
+    assert res.record(2).status == "occluded" and res.record(2).match == "fragment"
+    assert [res.record(k).status for k in (0, 1)] == ["static", "static"]
+    off = replace(FAST, change=replace(FAST.change, photo_fragment_points=0))
+    assert update_scene(s2, v, off).record(2).status == "removed"  # the flag the rule removes
