@@ -71,12 +71,12 @@ class PointCloudConfig:
     first moved onto the views' consensus surface, the zero crossing of a truncated signed
     distance field averaged over the views (``clutt3r_core.surface``), then voxel-averaged.
     ``auto`` (ours): ``tsdf`` when the views' depths disagree by at least ``surface_auto_sigma``
-    (measured from the data, ``surface.depth_disagreement``), else ``voxel-mean``; the fused
+    (measured from the data, ``depth_agreement.depth_disagreement``), else ``voxel-mean``; the fused
     cloud records what was measured and chosen (``FusedCloud.surface``)."""
 
     surface_auto_sigma: float = 0.001
     """With ``surface="auto"``: the views' depth disagreement (one view's noise, metres) from which
-    the surface estimate runs (ours, issue 13). Measured (``surface.depth_disagreement``): clean
+    the surface estimate runs (ours, issue 13). Measured (``depth_agreement.depth_disagreement``): clean
     1 mm-quantised generated depth 0.31-0.32 mm, RealSense-like generated depth 2.4-2.8 mm, the
     real sample_seq1 5.5 mm and sample_seq4 4.0 mm; 1 mm (a fifth of a voxel) lies between with
     a factor of 2.4 to each side. Below it the estimate gains little (docs/benchmark/strict-iou.md)

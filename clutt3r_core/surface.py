@@ -23,11 +23,19 @@ This module estimates the surface across views first, KinectFusion-style (Newcom
    band is one voxel thick);
 4. every raw point moves to the zero crossing along the gradient of its voxel
    (``p - E(p) g / |g|^2`` with ``E(p)`` linearised from the voxel centre); points whose voxel
-   has no usable gradient, or that would move more than ``max_shift``, keep their raw position;
+   has no usable gradient, or that would move more than ``max_shift`` or more than ``noise_k``
+   times the noise measured in the moves themselves (at the point's depth), keep their raw
+   position: on clean depth the estimate's rare errors (2-4 mm at rims, where the set of views
+   changes) are far beyond that noise, on noisy depth the noise's own moves are within it;
 5. the moved points are then voxel-averaged as before and a pixel maps to the voxel its moved
    point lands in. A voxel is kept when ``min_points`` moved points land in it, or one point
    moved from a voxel that held ``min_points`` raw points (a well observed surface that only
    clips the voxel's corner puts few samples in it).
+
+Whether to run it at all is decided from the data (``PointCloudConfig.surface = "auto"``, ours'
+default): ``depth_agreement.depth_disagreement`` measures how much the views disagree about the surface, and the
+estimate runs from ``PointCloudConfig.surface_auto_sigma`` (1 mm) on; ``surface_points`` is the
+fusion's hook and returns a ``SurfaceChoice`` with what was measured and done.
 
 Free-space carving (dropping voxels that other views see through) was tried and measured no
 gain on generated scenes (docs/benchmark/strict-iou.md); on clean depth it removed true surface
@@ -43,11 +51,11 @@ from typing import Sequence
 
 import numpy as np
 
+from clutt3r_core.depth_agreement import depth_disagreement
 from clutt3r_core.errors import SceneError
 from clutt3r_core.scene import View
 
-__all__ = ["SurfaceParams", "SnappedPoints", "snap_to_surface", "smooth_depth", "DepthAgreement", "depth_disagreement", "SurfaceChoice",
-           "surface_points"]
+__all__ = ["SurfaceParams", "SnappedPoints", "snap_to_surface", "smooth_depth", "SurfaceChoice", "surface_points"]
 
 
 @dataclass(frozen=True)
@@ -79,8 +87,8 @@ class SurfaceParams:
     refuses the 2-4 mm moves of rim voxels, whose gradient tilts where the set of views that see
     them changes; with RealSense-like noise it is about 4.5 mm at 1 m and leaves the noise's own
     moves alone. Measured on the tuning scenes (seeds 2-3, 6 scenes, docs/benchmark/strict-iou.md),
-    mean AP over the pipeline, clean / RealSense-like depth: no limit 64.0 (seed 0, 3 scenes) /
-    48.2, 4 -> 72.3 / 46.8, 6 -> 71.4 / 48.5 (plain fusion 68.6 / 39.2); 6 keeps the noisy-depth
+    mean AP over the pipeline, clean / RealSense-like depth: no limit 65.2 / 48.2, 4 -> 72.3 /
+    46.8, 6 -> 71.4 / 48.5 (plain fusion 68.6 / 39.2); 6 keeps the noisy-depth
     gain whole and AP50 on clean depth at the plain fusion's 97.8 (4: 95.4)."""
     min_points: int = 3
     """Raw points a voxel needed for its moved points to be trusted (the fusion's ``min_points``)."""
@@ -358,91 +366,6 @@ def _gradient(D: np.ndarray, nbrs, vs: float) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class DepthAgreement:
-    """How much the views disagree about where the surface is (``depth_disagreement``).
-
-    Attributes:
-        sigma: metres, the depth noise of one view as the views' disagreement shows it: the robust
-            spread (1.4826 x median absolute deviation) of the depth differences between a view's
-            samples and another view's depth there, over sqrt(2) (two views' errors add). It holds
-            every error that makes the fused surface thick: white and correlated sensor noise,
-            depth quantisation, pose and calibration error. NaN when no pair of views overlaps.
-        pairs: the (sample, other view) depth differences it was measured on.
-    """
-
-    sigma: float
-    pairs: int
-
-    def __post_init__(self) -> None:
-        if self.pairs < 0 or not (np.isnan(self.sigma) or self.sigma >= 0):
-            raise SceneError(f"DepthAgreement needs sigma >= 0 (or NaN) and pairs >= 0, got {self.sigma}, {self.pairs}")
-
-
-def _bilinear(z: np.ndarray, v: np.ndarray, u: np.ndarray, max_step: float) -> np.ndarray:
-    """(M,) depth of ``z`` (H, W) at sub-pixel rows ``v`` and columns ``u`` inside [0, H-1] x [0, W-1],
-    bilinear over the 4 nearest pixels; NaN where one is a hole or they span more than ``max_step``
-    metres (a depth edge: no surface to interpolate)."""
-    h, w = z.shape
-    v0 = np.minimum(v.astype(np.intp), h - 2)
-    u0 = np.minimum(u.astype(np.intp), w - 2)
-    fv = (v - v0).astype(np.float32)
-    fu = (u - u0).astype(np.float32)
-    q = [z[v0, u0], z[v0, u0 + 1], z[v0 + 1, u0], z[v0 + 1, u0 + 1]]
-    with np.errstate(invalid="ignore"):
-        span = np.maximum.reduce(q) - np.minimum.reduce(q)  # NaN where a hole is among them
-        out = (q[0] * (1 - fu) + q[1] * fu) * (1 - fv) + (q[2] * (1 - fu) + q[3] * fu) * fv
-        return np.where(span <= max_step, out, np.nan)
-
-
-def depth_disagreement(
-    views: Sequence[View],
-    strides: Sequence[int],
-    params: SurfaceParams = SurfaceParams(),
-    samples_per_view: int = 3000,
-) -> DepthAgreement:
-    """How much the views disagree about the surface (``DepthAgreement``), measured from the data.
-
-    ``samples_per_view`` pixels spread evenly over each view's valid sampled depth are moved into
-    every other view and compared with its depth there (bilinear, not across depth edges); only
-    differences within +-``params.truncation`` count (beyond it the other view sees another
-    surface: an occlusion). Every ordered pair of views is used, so the result does not depend on
-    the views' order. About 50k depth reads at 8 views: a few tens of milliseconds.
-    """
-    grids = []
-    for view, s in zip(views, strides):
-        z = np.asarray(view.depth, np.float32)[::s, ::s]
-        grids.append((view.camera, s, np.where((z >= params.min_depth) & (z <= params.max_depth), z, np.float32(np.nan))))
-    diffs = []
-    T = params.truncation
-    for a, (cam_a, sa, za) in enumerate(grids):
-        ok = np.flatnonzero(np.isfinite(za).ravel())
-        if not len(ok):
-            continue
-        pick = ok[np.linspace(0, len(ok) - 1, min(samples_per_view, len(ok))).astype(np.intp)]
-        row, col = np.divmod(pick, za.shape[1])
-        d = za.reshape(-1)[pick].astype(np.float64)
-        pc = np.stack([(col * sa - cam_a.cx) / cam_a.fx * d, (row * sa - cam_a.cy) / cam_a.fy * d, d], axis=1)
-        Twc = cam_a.T_world_camera
-        pw = pc @ Twc[:3, :3].T + Twc[:3, 3]
-        for b, (cam_b, sb, zb) in enumerate(grids):
-            if b == a:
-                continue
-            Tcw = cam_b.T_camera_world
-            q = pw @ Tcw[:3, :3].T + Tcw[:3, 3]
-            q = q[q[:, 2] > params.min_depth]
-            u = (q[:, 0] / q[:, 2] * cam_b.fx + cam_b.cx) / sb
-            v = (q[:, 1] / q[:, 2] * cam_b.fy + cam_b.cy) / sb
-            inside = (u >= 0) & (u <= zb.shape[1] - 1) & (v >= 0) & (v <= zb.shape[0] - 1)
-            diff = _bilinear(zb, v[inside], u[inside], T) - q[inside, 2]
-            diffs.append(diff[np.abs(diff) <= T])  # NaN compares False
-    dd = np.concatenate(diffs) if diffs else np.zeros(0)
-    if not len(dd):
-        return DepthAgreement(float("nan"), 0)
-    mad = float(np.median(np.abs(dd - np.median(dd))))
-    return DepthAgreement(float(1.4826 * mad / np.sqrt(2.0)), len(dd))
-
-
-@dataclass(frozen=True)
 class SurfaceChoice:
     """What the fusion did with the raw points (``surface_points``), for the record.
 
@@ -493,17 +416,10 @@ def _snap_and_filter(views, P, C, pix_list, offsets, strides, cfg, params):
     return sn.points[keep], C[keep], pix_list, offsets, sn.move_noise
 
 
-def snap_raw_points(views, P, C, pix_list, offsets, strides, cfg):
-    """``surface_points`` with the estimate always on, without the record (kept for callers of
-    the first version)."""
-    params = SurfaceParams(voxel_size=cfg.voxel_size, min_points=cfg.surface_min_points, min_depth=cfg.min_depth,
-                           max_depth=cfg.max_depth)
-    return _snap_and_filter(views, P, C, pix_list, offsets, strides, cfg, params)[:4]
-
 def surface_points(views, P, C, pix_list, offsets, strides, cfg):
     """The fusion's hook (``pointcloud.fuse_views`` with ``surface`` "tsdf" or "auto").
 
-    ``surface="auto"`` measures the views' depth disagreement (``depth_disagreement``) and runs
+    ``surface="auto"`` measures the views' depth disagreement (``depth_agreement``) and runs
     the surface estimate when it is at least ``cfg.surface_auto_sigma``. Returns ``P``, ``C``,
     ``pix_list`` and ``offsets`` as ``snap_raw_points`` does (unchanged when the estimate does not
     run) and the ``SurfaceChoice``.
@@ -512,7 +428,7 @@ def surface_points(views, P, C, pix_list, offsets, strides, cfg):
                            max_depth=cfg.max_depth)
     sigma = float("nan")
     if cfg.surface == "auto":
-        sigma = float(depth_disagreement(views, strides, params).sigma)
+        sigma = depth_disagreement(views, strides, params.truncation, params.min_depth, params.max_depth).sigma
         if not sigma >= cfg.surface_auto_sigma:  # NaN (no overlap between views): nothing to agree on
             return P, C, pix_list, offsets, SurfaceChoice("voxel-mean", sigma)
     out = _snap_and_filter(views, P, C, pix_list, offsets, strides, cfg, params)

@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 
 from clutt3r_core.errors import SceneError
 from clutt3r_core.pointcloud import PointCloudConfig, fuse_views
-from clutt3r_core.surface import DepthAgreement, depth_disagreement, snap_to_surface
+from clutt3r_core.depth_agreement import DepthAgreement, depth_disagreement
+from clutt3r_core.surface import snap_to_surface
 from clutt3r_core.synth.sensor import quantise_mm
 from tests.core._geometry_scenes import make_views
 from tests.core.test_surface import _noisy
