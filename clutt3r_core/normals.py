@@ -6,6 +6,8 @@ registration had its own k-NN + ``eigh`` copy).
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 __all__ = ["estimate_normals", "knn_query", "knn_tree", "smallest_eigvec"]
@@ -16,13 +18,23 @@ __all__ = ["estimate_normals", "knn_query", "knn_tree", "smallest_eigvec"]
 # ones, at the same speed (issue 13, 1080p memory). Each row's result is independent of
 # the block it falls in (the same bits, tests/core/test_normals.py).
 _NORMAL_BLOCK = 1 << 12
-# Points per k-NN query: each query is an OpenMP region, whose start and barrier cost CPU
-# on a loaded machine, and holds (rows, knn) float64 distances and int32 indices. Measured on
-# sample_seq4 the stage's traced peak is 30 MiB with 16 Ki rows (27 MiB with cKDTree's 4 Ki
-# blocks before) and 53 MiB with 64 Ki, the CPU time the same within the machine's noise.
-_QUERY_BLOCK = 1 << 14
+# Points per k-NN query, the unit of work of the normals' threads (``_max_workers``); a query
+# holds (rows, knn) float64 distances and int32 indices. Measured on sample_seq4 with 2 threads
+# the stage's traced peak is 32 MiB with 8 Ki rows, 36 MiB with 16 Ki (27 MiB with cKDTree's
+# 4 Ki blocks on one thread before), the time the same within the machine's noise.
+_QUERY_BLOCK = 1 << 13
 # Fewer queries than this run on one thread (knn_query).
 _PARALLEL_MIN_QUERIES = 1 << 12
+
+
+def _max_workers() -> int:
+    """Threads for the normals' blocks: the CPUs this process may use, at most 4 (ours: the
+    blocks share the GIL between numpy calls; 2 threads on the project's 2-core machine)."""
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cpus = os.cpu_count() or 1
+    return max(1, min(4, cpus))
 
 
 def knn_tree(points: np.ndarray):
@@ -33,8 +45,8 @@ def knn_tree(points: np.ndarray):
     ``scipy.spatial`` takes 0.09 s (its package init loads qhull, scipy.linalg and
     scipy.special, none of which the segmentation uses). Its distances are the same float64
     sums as cKDTree's, so the neighbours are the same up to the order of equal distances
-    (``knn_query``); its queries run on OpenMP threads (all cores; the results do not
-    depend on their number).
+    (``knn_query``); a query runs on OpenMP threads (all cores, unless limited; the results
+    do not depend on their number).
     """
     from pykdtree.kdtree import KDTree
 
@@ -88,7 +100,10 @@ def estimate_normals(points: np.ndarray, knn: int, *, neighbours: bool = False):
     generated scene (157 k voxels) and on sample_seq4 the two differ by at most a few
     micro-degrees (tests/core/test_normals.py). Neighbours come from ``knn_tree`` /
     ``knn_query``; the eigenvector is the closed form for a symmetric 3x3 matrix
-    (``smallest_eigvec``).
+    (``smallest_eigvec``). Blocks of ``_QUERY_BLOCK`` rows run on up to ``_max_workers()``
+    threads, each query on one thread: on a hard 640x480 scene (loaded 2-core machine, 8
+    alternating runs) 0.48 s wall / 0.49 s CPU against 0.66 / 0.57 with the blocks in turn
+    and each query on OpenMP's two threads; the same bits (tests/core/test_normals.py).
     """
     n = points.shape[0]
     if n < 3:
@@ -100,7 +115,8 @@ def estimate_normals(points: np.ndarray, knn: int, *, neighbours: bool = False):
     cols = [np.ascontiguousarray(pts[:, a]) for a in range(3)]
     nrm = np.empty((n, 3))
     table = np.empty((n, k), np.int32) if neighbours else None
-    for s0 in range(0, n, _QUERY_BLOCK):  # one query per _QUERY_BLOCK rows: few OpenMP regions
+
+    def block(s0: int) -> None:  # one k-NN query of _QUERY_BLOCK rows, then their covariances
         _, qidx = knn_query(tree, pts[s0 : s0 + _QUERY_BLOCK], k)
         for s in range(s0, s0 + len(qidx), _NORMAL_BLOCK):
             q = pts[s : min(s + _NORMAL_BLOCK, s0 + len(qidx))]
@@ -115,6 +131,27 @@ def estimate_normals(points: np.ndarray, knn: int, *, neighbours: bool = False):
             for j, (a, b) in enumerate(((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))):
                 cov[:, j] = np.einsum("ij,ij->i", d[a], d[b]) / k - m[a] * m[b]
             nrm[s : s + len(q)] = smallest_eigvec(cov)
+
+    starts = range(0, n, _QUERY_BLOCK)
+    workers = min(_max_workers(), len(starts))
+    if workers > 1:
+        # blocks on threads (numpy and the query release the GIL), each query on its own
+        # thread only (OpenMP's thread count is per calling thread): every row's result is
+        # computed as in one thread, the same bits
+        from concurrent.futures import ThreadPoolExecutor
+
+        def one_thread_block(s0: int) -> None:
+            from threadpoolctl import threadpool_limits
+
+            with threadpool_limits(1, user_api="openmp"):
+                block(s0)
+
+        with ThreadPoolExecutor(workers) as ex:
+            for _ in ex.map(one_thread_block, starts):  # re-raises a block's error
+                pass
+    else:
+        for s0 in starts:
+            block(s0)
     bad = ~np.isfinite(nrm).all(axis=1) | (np.linalg.norm(nrm, axis=1) < 0.5)
     nrm[bad] = (0.0, 0.0, 1.0)  # degenerate neighbourhoods (coincident voxels); oriented later
     return (nrm, table) if neighbours else nrm

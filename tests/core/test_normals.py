@@ -138,7 +138,7 @@ def test_smallest_eigvec_matches_eigh_on_random_covariances():
     assert _angles_deg(ours, ref).max() < 1e-5
 
 
-def test_normals_and_neighbours_do_not_depend_on_the_block_size(monkeypatch):
+def test_normals_and_neighbours_do_not_depend_on_the_block_size_or_threads(monkeypatch):
     """Issue 13: the estimate runs in blocks of rows (memory at 1080p); each row's normal and
     neighbour list must be the same bits whatever block it falls in, and the table is the
     k-NN query's (the super-voxel graph reuses it)."""
@@ -147,10 +147,13 @@ def test_normals_and_neighbours_do_not_depend_on_the_block_size(monkeypatch):
 
     pts = _noisy_surfaces(seed=5)
     whole, table = None, None
-    # (covariance block, query block): the query block need not be a multiple of the other
-    for block, qblock in ((1 << 20, 1 << 20), (4096, 1 << 16), (997, 3000), (7, 5), (4096, 1)):
+    # (covariance block, query block, threads): the query block need not be a multiple of the
+    # other; query blocks run on threads (any order of completion)
+    for block, qblock, workers in ((1 << 20, 1 << 20, 1), (4096, 1 << 16, 1), (997, 3000, 3), (7, 5, 2),
+                                   (4096, 1, 4), (4096, 3000, 1)):
         monkeypatch.setattr(pc, "_NORMAL_BLOCK", block)
         monkeypatch.setattr(pc, "_QUERY_BLOCK", qblock)
+        monkeypatch.setattr(pc, "_max_workers", lambda w=workers: w)
         nrm, tab = _estimate_normals(pts, 20, neighbours=True)
         if whole is None:
             whole, table = nrm, tab
