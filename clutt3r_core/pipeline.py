@@ -243,6 +243,7 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
         timings=tuple(timer.items),
         embedder=getattr(embedder, "name", type(embedder).__name__),
         config=config,
+        surface=cloud.surface,
     )
     return Segmentation(
         points=cloud.points,

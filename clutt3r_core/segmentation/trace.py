@@ -32,6 +32,7 @@ from clutt3r_core.segmentation.grouping import (
 )
 from clutt3r_core.segmentation.trees import InstanceTree
 from clutt3r_core.segmentation.vote import VoteResult
+from clutt3r_core.surface import SurfaceChoice
 
 __all__ = ["StageTiming", "StageClock", "Trace", "save_trace", "load_trace", "TRACE_VERSION"]
 
@@ -75,6 +76,9 @@ class Trace:
         timings: seconds per stage.
         embedder: name of the embedding backend used for S_semantic.
         config: the run's ``SegmentConfig`` (saved as JSON, read back equal).
+        surface: what the fusion measured and did with the raw points (``surface.SurfaceChoice``:
+            the views' depth disagreement, surface estimate or not, the noise that limited its
+            moves); None with ``pointcloud.surface = "voxel-mean"`` and in older traces.
     """
 
     frames: np.ndarray
@@ -89,6 +93,7 @@ class Trace:
     timings: tuple[StageTiming, ...]
     embedder: str
     config: SegmentConfig
+    surface: SurfaceChoice | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.config, SegmentConfig):
@@ -197,6 +202,8 @@ def save_trace(trace: Trace, folder: str | Path) -> Path:
         "timings": [asdict(t) for t in trace.timings],
         "config": config_to_json(trace.config),
     }
+    if trace.surface is not None:  # NaN (not measured) as null: strict JSON
+        meta["surface"] = {k: (None if isinstance(x, float) and x != x else x) for k, x in asdict(trace.surface).items()}
     if g.stops is not None:  # NaN (no pair left) is written as null: strict JSON
         meta["stops"] = [{k: (None if isinstance(x, float) and x != x else x) for k, x in asdict(st).items()}
                          for st in g.stops]
@@ -265,4 +272,6 @@ def load_trace(folder: str | Path) -> Trace:
         timings=tuple(StageTiming(**t) for t in meta["timings"]),
         embedder=meta["embedder"],
         config=config,
+        surface=SurfaceChoice(**{k: (float("nan") if x is None else x) for k, x in meta["surface"].items()})
+        if "surface" in meta else None,
     )

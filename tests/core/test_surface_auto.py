@@ -118,3 +118,22 @@ def test_move_limit_follows_the_measured_noise(clean_views):
     Pn, zn, snn = run(_noisy(clean_views, 0.003, seed=7))
     assert snn.move_noise > 5 * sn.move_noise
     assert snn.moved.mean() > 0.8
+
+
+@pytest.mark.parametrize("sigma", [0.0, 0.003])
+def test_the_trace_records_the_fusion_choice(clean_views, sigma, tmp_path):
+    """``segment`` keeps what the fusion measured and did in its trace, and a saved trace reads it
+    back (NaN, not measured, is stored as JSON null)."""
+    from clutt3r_core.pipeline import segment
+    from clutt3r_core.scene import Scene
+    from clutt3r_core.segmentation.trace import load_trace, save_trace
+
+    views = _noisy(clean_views, sigma, seed=3) if sigma else _quantised(clean_views)
+    seg = segment(Scene(views=tuple(views), initial=tuple(range(len(views)))))
+    s = seg.trace.surface
+    assert s.method == ("tsdf" if sigma else "voxel-mean")
+    assert (s.disagreement > AUTO.surface_auto_sigma) == bool(sigma)
+    assert np.isnan(s.move_noise) != bool(sigma)
+    back = load_trace(save_trace(seg.trace, tmp_path)).surface
+    assert back.method == s.method and back.disagreement == s.disagreement
+    assert back.move_noise == s.move_noise or (np.isnan(back.move_noise) and np.isnan(s.move_noise))
