@@ -308,7 +308,7 @@ for _name, _desc in (
     ("paper", "Clutt3R, the paper's text"),
     ("no-spatial", "Clutt3R without the spatial stage"),
     ("no-substitution", "Clutt3R without parent substitution"),
-    ("ours-noisy-depth", "Clutt3R, noisy-depth preset (multi-view surface estimate)"),
+    ("ours-noisy-depth", "Clutt3R, noisy-depth preset (multi-view surface estimate always on)"),
     ("naive", "naive 3D-IoU merging baseline"),
     ("maskclustering", "MaskClustering re-implementation"),
 ):

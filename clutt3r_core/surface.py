@@ -88,7 +88,7 @@ class SurfaceParams:
     them changes; with RealSense-like noise it is about 4.5 mm at 1 m and leaves the noise's own
     moves alone. Measured on the tuning scenes (seeds 2-3, 6 scenes, docs/benchmark/strict-iou.md),
     mean AP over the pipeline, clean / RealSense-like depth: no limit 65.2 / 48.2, 4 -> 72.3 /
-    46.8, 6 -> 71.4 / 48.5 (plain fusion 68.6 / 39.2); 6 keeps the noisy-depth
+    46.8, 6 -> 71.4 / 48.5 (plain fusion 68.6 / 39.1); 6 keeps the noisy-depth
     gain whole and AP50 on clean depth at the plain fusion's 97.8 (4: 95.4)."""
     min_points: int = 3
     """Raw points a voxel needed for its moved points to be trusted (the fusion's ``min_points``)."""

@@ -48,7 +48,8 @@ def bench_command(
         per_difficulty: override the suite's number of scenes per difficulty (0 = suite default).
         scenes_dir: evaluate these scene folders (with gt/points.npz) instead of generated scenes.
         methods: methods to run on the main setting (8 views, grounded-sam-like masks); add
-            ours-noisy-depth for the noisy-depth preset (slower fusion, so not in the default list).
+            ours-noisy-depth for the surface estimate forced on (ours runs it when the depth is noisy;
+            the preset differs on clean depth only, with a slower fusion, so not in the default list).
         view_sweep: also run ours and the baselines with 4 and 6 of the 8 views (Table IV).
         noise_sweep: also run ours and the baselines on clean and harsh mask candidates.
         ablation: also run the leave-one-out ablation of our additions over the paper on every

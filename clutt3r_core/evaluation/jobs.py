@@ -39,8 +39,10 @@ __all__ = [
 Method = Literal["ours", "paper", "no-spatial", "no-substitution", "ours-noisy-depth", "naive", "maskclustering"]
 METHODS: tuple[str, ...] = ("ours", "paper", "no-spatial", "no-substitution", "ours-noisy-depth", "naive", "maskclustering")
 DEFAULT_METHODS: tuple[str, ...] = tuple(m for m in METHODS if m != "ours-noisy-depth")
-"""What ``clutt3r bench`` runs unless told: every method but the noisy-depth preset, whose fusion
-is ~2.5x slower at 640x480 (docs/benchmark/strict-iou.md)."""
+"""What ``clutt3r bench`` runs unless told: every method but the noisy-depth preset. Ours already runs
+the surface estimate where the views' depths disagree by >= 1 mm (``pointcloud.surface = "auto"``:
+every RealSense-like scene), so the preset differs from ours on clean depth only, where its fusion
+takes ~3.5x as long at 640x480 (docs/benchmark/strict-iou.md)."""
 DIFFICULTIES: tuple[str, ...] = ("easy", "intermediate", "hard")
 MASK_NOISES: tuple[str, ...] = ("clean", "grounded-sam-like", "harsh")
 DEPTH_NOISES: tuple[str, ...] = ("realsense", "none")
