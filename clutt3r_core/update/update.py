@@ -22,7 +22,9 @@ Without depth (ours, ``ChangeConfig.use_photo``, photo_change.py): the stored po
 are compared with the new image first; instances found in place are static whatever their
 projected IoU (and stay out of the semantic stage of the association), unmatched ones found
 in place are static and unmatched ones found gone are removed (associate.py rule 5); the
-others keep the paper's IoU test and silhouette/photometric fit.
+others keep the paper's IoU test and silhouette/photometric fit. Instances too small for the
+test are fragments, kept (``photo_fragment_points``), and an instance reported removed that a
+displaced one now stands in front of is occluded (``hidden_by_moved_fraction``).
 """
 
 from __future__ import annotations

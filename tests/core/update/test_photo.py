@@ -156,3 +156,24 @@ def test_an_unjudged_fragment_is_kept_not_removed():
     assert [res.record(k).status for k in (0, 1)] == ["static", "static"]
     off = replace(FAST, change=replace(FAST.change, photo_fragment_points=0))
     assert update_scene(s2, v, off).record(2).status == "removed"  # the flag the rule removes
+
+
+def test_a_static_box_hidden_by_the_moved_one_is_occluded_not_removed():
+    # box 0 is pushed in front of box 1 (seen from low, beside): box 1's old place now shows
+    # box 0's colours (photometrically "gone") and its own mask is a sliver, so rule 5 says
+    # removed; at box 0's fitted pose box 1 is behind it (ChangeConfig.hidden_by_moved_fraction)
+    from ._scenes import yaw_motion
+
+    s = _state()
+    pts, cols, inst = two_boxes_on_a_table()
+    c0 = pts[inst == 0].astype(np.float64).mean(axis=0)
+    c1 = pts[inst == 1].astype(np.float64).mean(axis=0)
+    T = yaw_motion(0.0, (c1[0] - c0[0], c1[1] - c0[1] - 0.06, 0.0), c0)
+    moved = pts.copy()
+    moved[inst == 0] = moved[inst == 0] @ T[:3, :3].T + T[:3, 3]
+    v = render_view(moved, cols, inst, camera(eye=(0.25, -0.40, 0.16), target=tuple(c1)), frame=8, with_depth=False)
+    res = update_scene(s, v, FAST)
+    assert res.record(0).status == "displaced"
+    assert res.record(1).status == "occluded" and res.record(1).match.endswith("hidden-by-moved")
+    off = replace(FAST, change=replace(FAST.change, hidden_by_moved_fraction=1.0))
+    assert update_scene(s, v, off).record(1).status == "removed"  # the flag the rule removes
