@@ -2,7 +2,7 @@
 
 Usage::
 
-    .venv/bin/python benchmarks/bench_command.py [--base 2bca0bb] [--current REF] [--runs 3] [--work /tmp/clutt3r-bench-command]
+    .venv/bin/python benchmarks/bench_command.py [--base 357d37c] [--current REF] [--runs 3] [--work /tmp/clutt3r-bench-command]
         [--scenes hard:0] [--samples sample_seq4] [--no-base] [--out results.json]
 
 Issue 13 measured the whole command, not only the core: on a hard 640x480 8-view scene it
@@ -24,7 +24,8 @@ checkout's virtual environment and ``PYTHONPATH`` set to the tree), it measures:
   like the whole command: each makes a first call (it pays the lazy imports: scipy.spatial,
   and open3d before dfdac67) and one warm call, wall and CPU; medians over the processes;
   mask generation is not involved (the scenes have mask candidates);
-- same: whether the two trees' ``instances.npz`` instance labels are identical.
+- same: whether the two trees' run folders hold identical arrays (``instances.npz``,
+  ``cloud.npz``, ``trace/trace.npz``; NaN equal to NaN).
 
 CPU time is the fairer number on a loaded machine (the segment command is mostly one
 thread): on the project's shared 2-core machine wall times vary 2-3x with other jobs.
@@ -47,6 +48,17 @@ overview.png identical. What made the difference: overview.png's splat (1 s of C
 run), the super-voxel graph reusing the normals' k-NN table, npz files at zlib level 1.
 Still missed: 2 s and 1 s at 640x480, 4 s and 600 MiB at 1080p (the 1080p masks alone are
 240 MiB of bool stacks; docs/benchmark.md, "Whole command", second round).
+Third round, measured 2026-11-30 21:56-22:02 UTC against 357d37c (``--current`` = 357d37c plus
+the third round's commits only; shared 2-core machine, load average 3-12), median of 3, current
+/ base: sample_seq4 whole command CPU 4.88 / 6.89 s (0.71), wall 6.73 / 8.66 s, peak RSS 423 /
+655 MiB (0.65; the three runs 396-423); warm core CPU 1.87 / 2.80 s; hard 640x480 whole command
+CPU 3.15 / 3.29 s, peak RSS 305 / 333 MiB. Instances identical (and cloud, trace arrays:
+checked separately on seq4, seq1, hard 0, easy 1). What made the difference: mask candidates
+stored as a per-pixel mask-set code image (2 MiB per 1080p view instead of 2 MiB per mask;
+trees, occupancy, histograms and duplicates read the codes), Sub-filtered mask PNGs decoded
+from their value changes, OpenCV histograms for the appearance descriptor, and one loader
+thread per core (each extra thread kept its own malloc arena: 530 MiB peak with 8 threads,
+390 with 2). 600 MiB is met; 4 s is not on this machine (docs/benchmark.md, third round).
 Base and ``--current`` checkouts are ``git worktree``s under ``--work``, kept for the next run
 (``git worktree remove`` them when done).
 
@@ -69,9 +81,10 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT.parent / "shared" / "data" / "clutt3r-samples"
-# main at the start of the second round of issue-13 speed work (overview splat, BLAS threads,
-# shared k-NN); the first round's base was dfdac67 (before the lazy CLI and open3d-free normals)
-BASE_REF = "2bca0bb"
+# main at the start of the third round of issue-13 work (the 1080p masks as code images); the
+# second round's base was 2bca0bb (before the overview splat, BLAS threads, shared k-NN), the
+# first round's dfdac67 (before the lazy CLI and open3d-free normals)
+BASE_REF = "357d37c"
 TARGETS = {  # whole-process wall s, core wall s, peak RSS MiB (issue 13)
     "generated": (2.0, 1.0, None),
     "sample_seq4": (4.0, None, 600.0),
@@ -178,14 +191,28 @@ def _scenes(args, work: Path) -> list[tuple[str, str, Path]]:
     return out
 
 
-def _same_instances(a: Path, b: Path) -> bool | None:
+_COMPARED = ("instances.npz", "cloud.npz", "trace/trace.npz")
+
+
+def _same_outputs(a: Path, b: Path) -> bool | None:
+    """Whether two run folders hold the same arrays in ``_COMPARED`` (NaN equal to NaN; a file
+    that only one of them has is skipped: older trees wrote fewer); None if neither has
+    instances.npz."""
     import numpy as np
 
-    try:
-        with np.load(a / "instances.npz") as x, np.load(b / "instances.npz") as y:
-            return bool(np.array_equal(x["instance"], y["instance"]) and np.array_equal(x["scores"], y["scores"]))
-    except OSError:
+    if not (a / "instances.npz").is_file() or not (b / "instances.npz").is_file():
         return None
+    for rel in _COMPARED:
+        if not (a / rel).is_file() or not (b / rel).is_file():
+            continue
+        with np.load(a / rel) as x, np.load(b / rel) as y:
+            if sorted(x.files) != sorted(y.files):
+                return False
+            for k in x.files:
+                u, v = x[k], y[k]
+                if u.dtype != v.dtype or not np.array_equal(u, v, equal_nan=u.dtype.kind in "fc"):
+                    return False
+    return True
 
 
 def main() -> None:
@@ -222,7 +249,7 @@ def main() -> None:
                 print(f"{label} {t} run {i}: {r['wall']:.2f} s wall, {r['cpu']:.2f} s CPU, {r['rss_mib']:.0f} MiB",
                       file=sys.stderr)
         if len(trees) == 2:
-            row["same_instances"] = _same_instances(*(args.work / "runs" / f"{folder.name}_{t}" for t in trees))
+            row["same_outputs"] = _same_outputs(*(args.work / "runs" / f"{folder.name}_{t}" for t in trees))
         if not args.no_core:
             # one process per tree and run, alternating like the whole command (a process that
             # made all of one tree's calls in a row saw a different machine load than the other)
@@ -277,8 +304,8 @@ def _print_table(results: list[dict], trees: list[str]) -> None:
                  "{:.2f}", t_core)
             line(row["scene"], "core, warm CPU s (median)", {t: med(x[1] for x in c[t]["warm"]) for t in trees},
                  "{:.2f}", t_core)
-        if "same_instances" in row:
-            print(f"| {row['scene']} | instances identical to base | {row['same_instances']} | | | |")
+        if "same_outputs" in row:
+            print(f"| {row['scene']} | instances, cloud, trace arrays identical to base | {row['same_outputs']} | | | |")
 
 
 if __name__ == "__main__":
