@@ -23,8 +23,17 @@ in CPU seconds (``time.process_time``: on the project's shared 2-core machine wa
 medians over the processes, and the current / base ratio. Not a unit test: the numbers depend
 on the machine and its load; the instance labels are checked equal (``same``).
 
-Measured 2026-11-30 21:50-22:05 UTC (issue 13, third round; shared 2-core machine, load average
-6-13; ``--current`` = this round's commits): see docs/benchmark.md or the session report.
+Measured 2026-11-30 22:03-22:10 UTC (issue 13, third round: pykdtree k-NN, threaded normal
+blocks, own connected components; shared 2-core machine, load average 2.4-6; ``--base 357d37c
+--current f01f737`` = 357d37c plus this round's commits only, ``--runs 5``), CPU s, base ->
+current: hard seed 0: stage pointcloud (fusion + normals) 1.020 -> 0.870, stage supervoxels
+0.440 -> 0.298, first call - warm call (lazy imports: scipy.spatial, scipy.sparse.csgraph and
+scipy.linalg no more) 0.265 -> 0.122, warm call 1.909 -> 1.521 (0.80), other stages within
+noise; sample_seq1: pointcloud 0.900 -> 0.764, supervoxels 0.333 -> 0.265, first - warm 0.296 ->
+0.074, warm call 1.587 -> 1.422 (0.90). Instances identical. Left at 640x480 (hard seed 0):
+the fusion without the normals ~0.5 s, import 0.4 s (numpy, scipy.sparse 0.17-0.19 s for
+occupancy's two sparse products, tyro, rich), load_scene 0.25 s, normals 0.35 s,
+super-voxels 0.3 s.
 """
 
 from __future__ import annotations
