@@ -34,3 +34,22 @@ def test_adam_bit_identical_to_torch(seed: int, n: int) -> None:
             loss.backward()
             opt.step()
         assert torch.equal(ws[0], ws[1]) and torch.equal(ts[0], ts[1])
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), h=st.integers(1, 40), w=st.integers(1, 40),
+       density=st.floats(0.0, 0.5), grow=st.integers(0, 5))
+def test_near_outside_matches_distance_transform(seed: int, h: int, w: int, density: float, grow: int) -> None:
+    """The contour test of the loss: the same booleans as the former full distance transform."""
+    from scipy import ndimage
+
+    from clutt3r_core.update.pose import _near_outside
+
+    rng = np.random.default_rng(seed)
+    sil = rng.random((h, w)) < density
+    if grow:
+        sil = ndimage.binary_dilation(sil, iterations=grow)
+    flat = rng.integers(0, h * w, 80)
+    reach = rng.integers(0, 13, 80) + 1.5  # splat radii 0..12 (project._MAX_RADIUS) + 1.5
+    ref = ndimage.distance_transform_edt(np.pad(sil, 1))[1:-1, 1:-1].reshape(-1)[flat] <= reach
+    assert np.array_equal(_near_outside(sil, flat, reach), ref)
