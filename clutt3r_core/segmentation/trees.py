@@ -25,7 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from clutt3r_core.errors import SceneError
-from clutt3r_core.scene import MaskCandidates, encode_masks
+from clutt3r_core.mask_codes import encode_masks
+from clutt3r_core.scene import MaskCandidates
 
 __all__ = ["TreeConfig", "InstanceTree", "build_instance_tree", "build_tree_overlaps", "min_mask_area", "mask_overlaps", "mask_codes", "subtree_leaves"]
 
@@ -113,7 +114,7 @@ def mask_codes(flat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Factorise the pixels of a (M, P) bool mask stack by the set of masks containing them.
 
     Returns (label (P,) uint8, uint16 or int64 in 0..C-1, bits (C, M) bool): pixel p lies in mask m iff
-    ``bits[label[p], m]`` (``scene.encode_masks``, which ``MaskCandidates`` stores).
+    ``bits[label[p], m]`` (``mask_codes.encode_masks``, which ``MaskCandidates`` stores).
     M = 0 gives one empty code.
     """
     flat = np.asarray(flat, bool)

@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from clutt3r_core.errors import SceneError
-from clutt3r_core.scene import MaskCandidates, encode_masks
+from clutt3r_core.scene import MaskCandidates
 
 
 def _stack(seed: int, m: int, h: int, w: int) -> np.ndarray:
@@ -53,18 +53,6 @@ def test_codes_stand_for_the_stack(seed, m, h, w):
     np.testing.assert_array_equal(sel.stack(), stack[idx])
     np.testing.assert_array_equal(mc.stack(idx), stack[idx])
     np.testing.assert_array_equal(sel.overlaps(), flat[idx] @ flat[idx].T)
-
-
-def test_encode_masks_labels_and_bits():
-    a = np.array([[1, 1, 0, 0]], bool)
-    b = np.array([[0, 1, 1, 0]], bool)
-    label, bits = encode_masks(iter([a, b]), 4)
-    # pixel p is in mask m iff bits[label[p], m]
-    np.testing.assert_array_equal(bits[label], np.stack([a[0], b[0]], axis=1))
-    label0, bits0 = encode_masks(iter([]), 5)
-    assert bits0.shape == (1, 0) and not label0.any()
-    with pytest.raises(SceneError, match="pixels"):
-        encode_masks(iter([np.ones(3, bool)]), 4)
 
 
 def test_the_stack_is_cached_read_only_and_not_pickled():
