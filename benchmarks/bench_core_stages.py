@@ -31,9 +31,9 @@ current: hard seed 0: stage pointcloud (fusion + normals) 1.020 -> 0.870, stage 
 scipy.linalg no more) 0.265 -> 0.122, warm call 1.909 -> 1.521 (0.80), other stages within
 noise; sample_seq1: pointcloud 0.900 -> 0.764, supervoxels 0.333 -> 0.265, first - warm 0.296 ->
 0.074, warm call 1.587 -> 1.422 (0.90). Instances identical. Left at 640x480 (hard seed 0):
-the fusion without the normals ~0.5 s, import 0.4 s (numpy, scipy.sparse 0.17-0.19 s for
-occupancy's two sparse products, tyro, rich), load_scene 0.25 s, normals 0.35 s,
-super-voxels 0.3 s.
+the pointcloud stage 0.87 s (its k-NN query alone about 0.3 s of CPU), import 0.4 s (numpy,
+scipy.sparse 0.17-0.19 s for occupancy's two sparse products, tyro, rich), super-voxels
+0.3 s, load_scene 0.25 s.
 """
 
 from __future__ import annotations
