@@ -153,11 +153,11 @@ def _sub_png_mask(data: np.ndarray) -> np.ndarray | None:
     w, h = int.from_bytes(hdr[0:4], "big"), int.from_bytes(hdr[4:8], "big")
     if hdr[8:13] != bytes([8, 0, 0, 0, 0]) or not 0 < w * h <= 1 << 28:  # 8-bit grey, deflate, no interlace
         return None
-    try:
-        raw = zlib.decompress(b"".join(idat))
+    stride = w + 1  # a filter-type byte, then the row
+    try:  # at most one byte more than the image needs: a stream that inflates further is not ours
+        raw = zlib.decompressobj().decompress(b"".join(idat), h * stride + 1)
     except zlib.error:
         return None
-    stride = w + 1  # a filter-type byte, then the row
     if len(raw) != h * stride:
         return None
     flat = np.frombuffer(raw, np.uint8)

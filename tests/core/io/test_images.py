@@ -106,3 +106,26 @@ def test_io_threads_follow_the_usable_cpus(monkeypatch):
     monkeypatch.delattr(images.os, "sched_getaffinity", raising=False)
     monkeypatch.setattr(images.os, "cpu_count", lambda: None)
     assert images.io_threads() == 1
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), flips=st.integers(1, 4))
+def test_a_damaged_sub_png_reads_as_opencv_reads_it_or_is_refused(tmp_path_factory, seed, flips):
+    """Property: bytes of the deflate stream flipped and the chunk CRC made valid again: the
+    fast path and OpenCV agree (the same pixels), or read_mask raises a SceneFileError."""
+    rng = np.random.default_rng(seed)
+    img = _image(seed, 24, 33, 0)
+    raw = bytearray(_png(img, cv2.IMWRITE_PNG_FILTER_SUB))
+    i = raw.index(b"IDAT")
+    n = int.from_bytes(raw[i - 4 : i], "big")
+    for k in rng.integers(0, n, flips):
+        raw[i + 4 + k] ^= int(rng.integers(1, 256))
+    raw[i + 4 + n : i + 8 + n] = zlib.crc32(bytes(raw[i : i + 4 + n])).to_bytes(4, "big")
+    p = tmp_path_factory.mktemp("d") / "m.png"
+    p.write_bytes(bytes(raw))
+    ref = cv2.imdecode(np.frombuffer(bytes(raw), np.uint8), cv2.IMREAD_UNCHANGED)
+    if ref is None:
+        with pytest.raises(SceneFileError, match="m.png"):
+            read_mask(p)
+    else:
+        np.testing.assert_array_equal(read_mask(p), (ref > 0) if ref.ndim == 2 else ref[:, :, :3].max(axis=2) > 0)
