@@ -135,6 +135,10 @@ def _sub_png_mask(data: np.ndarray) -> np.ndarray | None:
     bytes at a time for those changes, the value after each is the running sum (mod 256) of
     the row's changes, and the runs of non-zero value are painted. No row is unfiltered
     pixel by pixel.
+
+    Why by hand and not a library: a decoder must unfilter every byte; this one skips the zero
+    bytes. sample_seq4's 120 1080p masks: OpenCV (libpng) 1.34 s CPU, pyspng (libspng) 1.32 s,
+    this path 0.53 s (2026-11-30). Any PNG it does not recognise still goes to OpenCV.
     """
     b = data.tobytes()
     pos, n, hdr, idat = 8, len(b), None, []
