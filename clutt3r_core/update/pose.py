@@ -314,15 +314,18 @@ class _Solver:
         # state then stays at zero, so the SE(3) fine stage starts from the yaw result)
         return params["w"] * self.rot_mask
 
-    def matrix(self, params) -> np.ndarray:
+    def matrix(self, params, R=None) -> np.ndarray:
+        """The motion at ``params``; ``R``: their rotation when the loss just computed it (the
+        same values: autograd does not change the forward arithmetic)."""
         with self.torch.no_grad():
-            R = self.rotation(self.rotvec(params)).numpy()
+            R = self.rotation(self.rotvec(params)).numpy() if R is None else R.detach().numpy()
             return motion_matrix(R, self.c, params["t"].numpy()) @ self.T_init
 
     # -- one evaluation ------------------------------------------------------------------
     def losses(self, params, stage: StageConfig):
         torch, pb, cfg = self.torch, self.pb, self.cfg
         R = self.rotation(self.rotvec(params))
+        self.last_R = R
         pw = self.p @ R.T + self.c_t + params["t"]
         pc = pw @ self.Rcw.T + self.tcw
         z = pc[:, 2].clamp(min=1e-3)
@@ -401,7 +404,7 @@ class _Solver:
                 g["lr"] = lr * f
             opt.zero_grad()
             total, terms = self.losses(params, stage)
-            T = self.matrix(params)
+            T = self.matrix(params, self.last_R)
             # the IoU of an iteration comes from the splats the loss just made (subsampled points,
             # larger splats): measured on sample_seq1 the exact IoU of every step was 1/5 of an
             # update's CPU; the final IoU of each stage (early exit, verification) is exact
@@ -413,7 +416,7 @@ class _Solver:
     def final(self, params, stage: StageConfig, stage_id: int, log: list) -> None:
         with self.torch.no_grad():
             total, terms = self.losses(params, stage)
-        T = self.matrix(params)
+        T = self.matrix(params, self.last_R)
         log.append((stage_id, T, [float(total.detach())] + [float(x.detach()) for x in terms], self.iou(T)))
 
     def run(self) -> PoseResult:

@@ -96,8 +96,12 @@ def _zbuf_by_filter(z: np.ndarray, u: np.ndarray, v: np.ndarray, r: np.ndarray, 
     """(h * w,) nearest z per window pixel, the same values as the per-offset z-buffer of
     ``splat``: per splat radius, the nearest z at each centre pixel (window padded by the
     radius, so splats centred outside it still reach in) then a (2r+1)^2 minimum filter
-    (separable; a square splat of half-size r covers exactly the pixels within r in both axes)."""
-    from scipy.ndimage import minimum_filter
+    (a square splat of half-size r covers exactly the pixels within r in both axes).
+
+    The filter is OpenCV's erosion with a square kernel and an inf border: the same values as
+    ``scipy.ndimage.minimum_filter(..., mode="constant", cval=inf)`` (a minimum is exact;
+    tests/core/update/test_pose_speed.py compares them), ~3x less CPU on the pose fit's windows."""
+    import cv2
 
     out = np.full((h, w), np.inf)
     for rr in np.unique(r[idx]):
@@ -108,7 +112,8 @@ def _zbuf_by_filter(z: np.ndarray, u: np.ndarray, v: np.ndarray, r: np.ndarray, 
         inside = (uu >= 0) & (uu < pw) & (vv >= 0) & (vv < ph)  # the rest cannot reach the window
         cz = np.full(ph * pw, np.inf)
         np.minimum.at(cz, vv[inside] * pw + uu[inside], z[g][inside])
-        zz = minimum_filter(cz.reshape(ph, pw), size=2 * rr + 1, mode="constant", cval=np.inf)
+        zz = cv2.erode(cz.reshape(ph, pw), np.ones((2 * rr + 1, 2 * rr + 1), np.uint8),
+                       borderType=cv2.BORDER_CONSTANT, borderValue=np.inf)
         np.minimum(out, zz[rr : rr + h, rr : rr + w], out=out)
     return out.reshape(-1)
 

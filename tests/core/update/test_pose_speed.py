@@ -53,3 +53,19 @@ def test_near_outside_matches_distance_transform(seed: int, h: int, w: int, dens
     reach = rng.integers(0, 13, 80) + 1.5  # splat radii 0..12 (project._MAX_RADIUS) + 1.5
     ref = ndimage.distance_transform_edt(np.pad(sil, 1))[1:-1, 1:-1].reshape(-1)[flat] <= reach
     assert np.array_equal(_near_outside(sil, flat, reach), ref)
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), h=st.integers(1, 60), w=st.integers(1, 60), r=st.integers(0, 12),
+       fill=st.floats(0.0, 1.0))
+def test_zbuf_filter_matches_scipy_minimum_filter(seed: int, h: int, w: int, r: int, fill: float) -> None:
+    """project._zbuf_by_filter's OpenCV erosion: scipy's constant-inf minimum filter, bit for bit."""
+    import cv2
+    from scipy.ndimage import minimum_filter
+
+    rng = np.random.default_rng(seed)
+    a = np.where(rng.random((h, w)) < fill, rng.uniform(0.05, 5.0, (h, w)), np.inf)
+    ref = minimum_filter(a, size=2 * r + 1, mode="constant", cval=np.inf)
+    out = cv2.erode(a, np.ones((2 * r + 1, 2 * r + 1), np.uint8), borderType=cv2.BORDER_CONSTANT,
+                    borderValue=np.inf)
+    assert out.dtype == np.float64 and np.array_equal(out, ref)
