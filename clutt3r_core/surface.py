@@ -323,8 +323,11 @@ def _distance_field(sampled, pts: np.ndarray, origin: np.ndarray, params: Surfac
     m = len(pts)
     T = float(params.truncation)
     ssum = np.zeros(m)
-    vsum = np.zeros((m, 3))
+    vsum = np.zeros((3, m))
     nnear = np.zeros(m, np.int32)
+    # BLAS takes another path (other rounding) for an F-ordered matrix: z is projected from ``pts`` as
+    # given, the image coordinates from a C-ordered copy (one copy for all views)
+    pts_c = np.ascontiguousarray(pts)
     for cam, s, depth in sampled:
         h, w = depth.z.shape
         Tcw = cam.T_camera_world
@@ -332,22 +335,28 @@ def _distance_field(sampled, pts: np.ndarray, origin: np.ndarray, params: Surfac
         t = (Tcw[:3, :3] @ origin + Tcw[:3, 3]).astype(np.float32)
         z = pts @ R[2] + t[2]
         front = np.flatnonzero(z > params.min_depth)
-        zf = z[front]
-        c = pts[front]
+        if len(front) == m:  # every point in front (the usual case): no gathers
+            zf, c = z, pts_c
+        else:
+            zf, c = z[front], pts_c[front]
         col = ((c @ R[0] + t[0]) * np.float32(cam.fx) / zf + np.float32(cam.cx)) / np.float32(s)
         row = ((c @ R[1] + t[1]) * np.float32(cam.fy) / zf + np.float32(cam.cy)) / np.float32(s)
-        inside = (col > -0.5) & (col < w - 0.5) & (row > -0.5) & (row < h - 0.5)
-        idx = front[inside]
+        inside = np.flatnonzero((col > -0.5) & (col < w - 0.5) & (row > -0.5) & (row < h - 0.5))
         sd = depth.at(row[inside], col[inside]) - zf[inside]
-        near = np.abs(sd) <= T  # NaN (hole) compares False
-        i_near = idx[near]
-        ssum[i_near] += sd[near]
-        # s_j times the unit ray of view j (camera to point), for the euclidean distance
-        ray = c[np.flatnonzero(inside)[near]].astype(np.float64) - (cam.T_world_camera[:3, 3] - origin)
-        ray *= (sd[near] / np.sqrt((ray * ray).sum(axis=1)))[:, None]
-        vsum[i_near] += ray
+        near = np.flatnonzero(np.abs(sd) <= T)  # NaN (hole) compares False
+        sel = inside[near]  # rows of c / front
+        i_near = front[sel]
+        sdn = sd[near]
+        ssum[i_near] += sdn
+        # s_j times the unit ray of view j (camera to point), for the euclidean distance; per axis,
+        # in the order of a row sum of squares (the same float64 operations as on (N, 3) rows)
+        eye = cam.T_world_camera[:3, 3] - origin
+        ray = [c[sel, a].astype(np.float64) - eye[a] for a in range(3)]
+        f = sdn / np.sqrt((ray[0] * ray[0] + ray[1] * ray[1]) + ray[2] * ray[2])
+        for a in range(3):
+            vsum[a, i_near] += ray[a] * f
         nnear[i_near] += 1
-    return np.divide(ssum, nnear, out=np.zeros(m), where=nnear > 0), vsum.T, nnear
+    return np.divide(ssum, nnear, out=np.zeros(m), where=nnear > 0), vsum, nnear
 
 
 def _gradient(D: np.ndarray, nbrs, vs: float) -> np.ndarray:
