@@ -25,7 +25,8 @@ on the machine and its load; the instance labels are checked equal (``same``).
 
 Measured 2026-11-30 22:03-22:10 UTC (issue 13, third round: pykdtree k-NN, threaded normal
 blocks, own connected components; shared 2-core machine, load average 2.4-6; ``--base 357d37c
---current f01f737`` = 357d37c plus this round's commits only, ``--runs 5``), CPU s, base ->
+--current X``, X = 357d37c with only this round's commits cherry-picked (745d8fb 6a380fb 5e07280
+97aa968 684d44d dbcc563), ``--runs 5``), CPU s, base ->
 current: hard seed 0: stage pointcloud (fusion + normals) 1.020 -> 0.870, stage supervoxels
 0.440 -> 0.298, first call - warm call (lazy imports: scipy.spatial, scipy.sparse.csgraph and
 scipy.linalg no more) 0.265 -> 0.122, warm call 1.909 -> 1.521 (0.80), other stages within
