@@ -69,3 +69,64 @@ def test_zbuf_filter_matches_scipy_minimum_filter(seed: int, h: int, w: int, r: 
     out = cv2.erode(a, np.ones((2 * r + 1, 2 * r + 1), np.uint8), borderType=cv2.BORDER_CONSTANT,
                     borderValue=np.inf)
     assert out.dtype == np.float64 and np.array_equal(out, ref)
+
+
+def _splat_points_reference(points, camera, voxel, scale=1.0, window=None):
+    """project.splat's point buffer as written before the winner pre-selection (every point
+    expanded to every offset, ``np.minimum.at``): the reference the fast path must equal."""
+    from clutt3r_core.update.project import splat_radius
+
+    uv, z = camera.project(points)
+    ok = np.isfinite(z) & (z > 1e-6) & np.all(np.isfinite(uv), axis=1)
+    u = np.round(np.where(ok, uv[:, 0], 0)).astype(np.int64)
+    v = np.round(np.where(ok, uv[:, 1], 0)).astype(np.int64)
+    r = splat_radius(np.where(ok, z, np.inf), camera, voxel, scale)
+    H, W = camera.height, camera.width
+    ok &= (u + r >= 0) & (u - r < W) & (v + r >= 0) & (v - r < H)
+    if window is None:
+        v0, v1 = max(0, int((v - r)[ok].min())), min(H, int((v + r)[ok].max()) + 1)
+        u0, u1 = max(0, int((u - r)[ok].min())), min(W, int((u + r)[ok].max()) + 1)
+    else:
+        v0, u0, hh, ww = window
+        v1, u1 = v0 + hh, u0 + ww
+    h, w = v1 - v0, u1 - u0
+    zbuf, pbuf = np.full(h * w, np.inf), np.full(h * w, -1, np.int64)
+    idx = np.flatnonzero(ok)
+    rmax = int(r[idx].max())
+    d = np.arange(-rmax, rmax + 1)
+    dv, du = (a.ravel() for a in np.meshgrid(d, d, indexing="ij"))
+    reach = np.maximum(np.abs(du), np.abs(dv))
+    uu, vv = u[idx, None] + du[None, :] - u0, v[idx, None] + dv[None, :] - v0
+    sel = (r[idx, None] >= reach[None, :]) & (uu >= 0) & (uu < w) & (vv >= 0) & (vv < h)
+    flat = (vv * w + uu)[sel]
+    zz = np.broadcast_to(z[idx, None], sel.shape)[sel]
+    pi = np.broadcast_to(idx[:, None], sel.shape)[sel]
+    np.minimum.at(zbuf, flat, zz)
+    win = zz == zbuf[flat]
+    pbuf[flat[win]] = pi[win]
+    return zbuf.reshape(h, w), pbuf.reshape(h, w)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(1, 400), dup=st.booleans(), windowed=st.booleans())
+def test_splat_point_buffer_matches_full_expansion(seed: int, n: int, dup: bool, windowed: bool) -> None:
+    """The winner pre-selection of splat(with_points=True) keeps every point buffer entry, ties
+    (duplicated points) and points whose splats only graze the image included."""
+    from clutt3r_core.scene import Camera
+    from clutt3r_core.update.project import splat
+
+    rng = np.random.default_rng(seed)
+    K = np.array([[60.0, 0, 40], [0, 60.0, 30], [0, 0, 1]])
+    cam = Camera(K=K, width=80, height=60, T_world_camera=np.eye(4))
+    pts = np.column_stack([rng.uniform(-0.9, 0.9, n), rng.uniform(-0.7, 0.7, n), rng.uniform(0.05, 1.5, n)])
+    if dup:  # exact z ties at shared pixels
+        pts = np.concatenate([pts, pts[: n // 2]])
+    pts = np.round(pts, 2)  # more ties of z between different points
+    window = (int(rng.integers(0, 30)), int(rng.integers(0, 40)), int(rng.integers(1, 30)), int(rng.integers(1, 40))) \
+        if windowed else None
+    s = splat(pts, cam, voxel=0.01, window=window)
+    if not (s.h and s.w) or not np.isfinite(s.z).any():
+        return
+    zref, pref = _splat_points_reference(pts, cam, 0.01, window=window)
+    assert np.array_equal(s.zbuf, zref)
+    assert np.array_equal(s.point, pref)
