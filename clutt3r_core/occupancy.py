@@ -27,7 +27,6 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-import scipy.sparse as sp
 
 from clutt3r_core.errors import SceneError
 from clutt3r_core.pointcloud import FusedCloud
@@ -35,7 +34,7 @@ from clutt3r_core.scene import MaskCandidates
 from clutt3r_core.segmentation.trees import mask_codes
 from clutt3r_core.supervoxels import SuperVoxels
 
-__all__ = ["OccupancyConfig", "mask_voxel_hits", "mask_occupancy"]
+__all__ = ["OccupancyConfig", "VoxelHits", "mask_voxel_hits", "mask_occupancy"]
 
 
 @dataclass(frozen=True)
@@ -70,9 +69,70 @@ def _check_masks(cloud: FusedCloud, view_index: int, masks: np.ndarray) -> np.nd
     return masks.astype(bool, copy=False)
 
 
-def mask_voxel_hits(cloud: FusedCloud, view_index: int, masks: np.ndarray | MaskCandidates) -> sp.csr_matrix:
-    """(M, N) float32 CSR: number of pixels of mask m (``masks`` (M, H, W) bool, or the
-    ``MaskCandidates``, of view ``view_index``) that fed voxel n."""
+@dataclass(frozen=True)
+class VoxelHits:
+    """(M, N) sparse pixel counts: mask m of one view fed voxel n with ``data[e]`` pixels at
+    (``row[e]``, ``col[e]``).
+
+    Entries are sorted by (row, col), unique and non-zero (scipy's canonical CSR order), so
+    sums over them run in the order a CSR product would. numpy only: ``scipy.sparse``
+    costs 0.17-0.19 s of package init per ``clutt3r segment`` process (issue 13), and these
+    are the only sparse products the segmentation needs.
+    """
+
+    row: np.ndarray
+    """(E,) int64 mask index in [0, M)."""
+    col: np.ndarray
+    """(E,) int64 voxel index in [0, N)."""
+    data: np.ndarray
+    """(E,) float32 pixel counts, > 0 (small integers: exact)."""
+    shape: tuple[int, int]
+    """(M, N): masks of the view, voxels of the cloud."""
+
+    def __post_init__(self) -> None:
+        e = len(self.data)
+        if self.row.shape != (e,) or self.col.shape != (e,) or self.data.dtype != np.float32 or len(self.shape) != 2:
+            raise SceneError(f"VoxelHits: row, col, data must be (E,) with float32 data, got "
+                             f"{self.row.shape}, {self.col.shape}, {self.data.shape} {self.data.dtype}")
+
+    @classmethod
+    def from_dense(cls, counts: np.ndarray) -> VoxelHits:
+        """From (M, N) dense pixel counts (tests and small inputs)."""
+        counts = np.asarray(counts, np.float32)
+        if counts.ndim != 2:
+            raise SceneError(f"VoxelHits.from_dense needs (M, N) counts, got {counts.shape}")
+        row, col = np.nonzero(counts)  # row-major: the canonical order
+        return cls(row.astype(np.int64), col.astype(np.int64), counts[row, col], counts.shape)
+
+    def row_sums(self) -> np.ndarray:
+        """(M,) float64 pixels of each mask that fed any voxel."""
+        return np.bincount(self.row, weights=self.data.astype(np.float64), minlength=self.shape[0]).astype(
+            np.float64, copy=False)
+
+    def matvec(self, x: np.ndarray) -> np.ndarray:
+        """(M,) float64 ``hits @ x`` for x (N,): per row, the sum in column order (as scipy's CSR)."""
+        x = np.asarray(x, np.float64)
+        return np.bincount(self.row, weights=self.data.astype(np.float64) * x[self.col],
+                           minlength=self.shape[0]).astype(np.float64, copy=False)
+
+    def toarray(self) -> np.ndarray:
+        """(M, N) float32 dense counts (tests and small inputs)."""
+        out = np.zeros(self.shape, np.float32)
+        out[self.row, self.col] = self.data
+        return out
+
+    def tocsr(self):
+        """A ``scipy.sparse.csr_matrix`` copy (the baselines stack them); imports scipy."""
+        import scipy.sparse as sp
+
+        indptr = np.zeros(self.shape[0] + 1, np.int64)
+        np.cumsum(np.bincount(self.row, minlength=self.shape[0]), out=indptr[1:])
+        return sp.csr_matrix((self.data.copy(), self.col.copy(), indptr), shape=self.shape)
+
+
+def mask_voxel_hits(cloud: FusedCloud, view_index: int, masks: np.ndarray | MaskCandidates) -> VoxelHits:
+    """(M, N) pixels of mask m (``masks`` (M, H, W) bool, or the ``MaskCandidates``, of
+    view ``view_index``) that fed voxel n."""
     if isinstance(masks, MaskCandidates):  # compact candidates: read the fed pixels' mask sets
         _check_masks(cloud, view_index, np.broadcast_to(False, (len(masks), *masks.shape)))  # shape only, 0 bytes
         pix, vox = _view_pixels(cloud, view_index)
@@ -85,24 +145,40 @@ def mask_voxel_hits(cloud: FusedCloud, view_index: int, masks: np.ndarray | Mask
         # (np.take along axis 1 is about twice as fast as fancy indexing here.)
         sub = np.take(masks.reshape(m, masks.shape[1] * masks.shape[2]), pix, axis=1)  # (M, P) bool; M may be 0
         label, bits = mask_codes(sub)
-    # Pixels factorised by the set of masks containing them: (code, voxel) pair
-    # counts, then hits = bits.T @ pair counts. All counts are small integers, exact in
-    # float32, so this equals counting (mask, pixel) pairs one by one.
+    n, m = cloud.num, bits.shape[1]
+    # Pixels factorised by the set of masks containing them (code): unique (voxel, code)
+    # pairs with their pixel counts, then each pair is expanded to the masks of its code.
     inside = bits.any(axis=1)[label]  # pixels in no mask add nothing
     c = len(bits)
-    label, vox = label[inside], vox[inside]
-    # (code, voxel) pairs as a CSR with repeated entries, rows by a stable counting-type
-    # sort of the small code labels (radix sort for 16-bit keys); the product below sums
-    # the repeats, so no per-row sort of the pairs is needed.
-    small = label.astype(np.uint16) if c <= 1 << 16 else label
+    key = vox[inside] * c + label[inside].astype(np.int64)  # sorted by voxel, then code
+    key.sort()
+    if len(key) == 0:
+        z = np.zeros(0, np.int64)
+        return VoxelHits(z, z, np.zeros(0, np.float32), (m, n))
+    first = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+    count = np.diff(np.r_[first, len(key)])  # pixels per unique (voxel, code) pair
+    pvox, pcode = np.divmod(key[first], c)
+    # masks of each code, as a CSR over codes (np.nonzero is row-major: codes in order)
+    cm_code, cm_mask = np.nonzero(bits)
+    per_code = np.bincount(cm_code, minlength=c)
+    start = np.zeros(c, np.int64)
+    np.cumsum(per_code[:-1], out=start[1:])
+    rep = per_code[pcode]
+    pair = np.repeat(np.arange(len(pvox)), rep)  # (E,) the pair of each (pair, mask) entry
+    base = np.repeat(np.cumsum(rep) - rep, rep)
+    mask_of = cm_mask[start[pcode][pair] + (np.arange(len(pair)) - base)]
+    # Entries are in voxel order; a stable sort by the (small) mask index (radix sort for
+    # 16-bit keys) puts them in (mask, voxel) order, where a voxel fed by several codes
+    # of one mask has adjacent entries to sum.
+    small = mask_of.astype(np.uint16) if m <= 1 << 16 else mask_of
     order = np.argsort(small, kind="stable")
-    indptr = np.zeros(c + 1, np.int64)
-    np.cumsum(np.bincount(label, minlength=c), out=indptr[1:])
-    pairs = sp.csr_matrix((np.ones(len(order), np.float32), vox[order], indptr), shape=(c, cloud.num))
-    hits = (sp.csr_matrix(bits.T.astype(np.float32)) @ pairs).tocsr()
-    hits.sum_duplicates()
-    hits.sort_indices()
-    return hits
+    row, col, cnt = mask_of[order].astype(np.int64), pvox[pair[order]], count[pair[order]]
+    new = np.r_[True, (row[1:] != row[:-1]) | (col[1:] != col[:-1])]
+    at = np.flatnonzero(new)
+    # integer pixel counts summed exactly, then float32 (exact below 2**24): the values a
+    # float32 sparse product of the 0/1 code bits and the pair counts gives
+    data = np.add.reduceat(cnt, at).astype(np.float32)
+    return VoxelHits(row[at], col[at], data, (m, n))
 
 
 def mask_occupancy(
@@ -111,7 +187,7 @@ def mask_occupancy(
     view_index: int,
     masks: np.ndarray,
     cfg: OccupancyConfig = OccupancyConfig(),
-    hits: sp.csr_matrix | None = None,
+    hits: VoxelHits | None = None,
 ) -> np.ndarray:
     """(M, K) float32 occupancy ratio o_i(k) in [0, 1] of every super-voxel by every mask
     of view ``view_index`` (Sec. III-B eq. 2; the formula is in the module doc).
@@ -132,10 +208,10 @@ def mask_occupancy(
     scale = np.divide(c, fed, out=np.zeros(n), where=fed > 0)
     # num = hits @ member with member (N, K) = scale on (n, label_n): a weighted sum of
     # each hit row into its super-voxels, done on the hits' non-zeros only.
-    h = hits.tocoo()
+    h = hits
     m = h.shape[0]
     num = np.bincount(
-        h.row.astype(np.int64) * k + sv.labels[h.col], weights=h.data.astype(np.float64) * scale[h.col],
+        h.row * k + sv.labels[h.col], weights=h.data.astype(np.float64) * scale[h.col],
         minlength=m * k,
     ).astype(np.float64, copy=False).reshape(m, k)  # (bincount of nothing is int64)
     if cfg.normalise == "visible":

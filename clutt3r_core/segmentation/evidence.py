@@ -11,11 +11,15 @@ The minimum mask area lives with the instance trees (``trees.min_mask_area``).
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import scipy.sparse as sp
 
 from clutt3r_core.errors import SceneError
 from clutt3r_core.scene import Scene
+
+if TYPE_CHECKING:  # occupancy imports the segmentation package
+    from clutt3r_core.occupancy import VoxelHits
 
 __all__ = ["check_views", "background_masks"]
 
@@ -38,7 +42,7 @@ def check_views(scene: Scene, masks: bool = True) -> None:
             )
 
 
-def background_masks(hits: sp.csr_matrix, support_voxel: np.ndarray, fraction: float) -> np.ndarray:
+def background_masks(hits: VoxelHits, support_voxel: np.ndarray, fraction: float) -> np.ndarray:
     """(M,) bool: mask m is background.
 
     ``hits``: (M, N) pixels of mask m that fed voxel n (``occupancy.mask_voxel_hits``);
@@ -55,6 +59,6 @@ def background_masks(hits: sp.csr_matrix, support_voxel: np.ndarray, fraction: f
     """
     if hits.shape[0] == 0:
         return np.zeros(0, bool)
-    total = np.asarray(hits.sum(axis=1), np.float64).ravel()  # integer pixel counts: exact
-    on_support = hits @ np.asarray(support_voxel, np.float64)
+    total = hits.row_sums()  # integer pixel counts: exact
+    on_support = hits.matvec(support_voxel)
     return (on_support > fraction * total) | (total == 0)

@@ -55,9 +55,21 @@ def test_random_masks_occupancy_in_unit_interval_and_hits_count_pixels(scene, se
     shape = cloud.pixel_voxel[1].shape
     masks = np.random.default_rng(seed).random((m,) + shape) < p
     hits = mask_voxel_hits(cloud, 1, masks)
-    assert hits.shape == (m, cloud.num) and hits.dtype == np.float32
+    assert hits.shape == (m, cloud.num) and hits.data.dtype == np.float32
     fed = cloud.pixel_voxel[1] >= 0
-    np.testing.assert_array_equal(np.asarray(hits.sum(axis=1)).ravel(), (masks & fed).reshape(m, fed.size).sum(axis=1))
+    np.testing.assert_array_equal(hits.row_sums(), (masks & fed).reshape(m, fed.size).sum(axis=1))
+    # dense reference: pixels of mask m that fed voxel n, counted one by one
+    pv = cloud.pixel_voxel[1]
+    dense = np.zeros((m, cloud.num), np.float32)
+    for i in range(m):
+        np.add.at(dense[i], pv[masks[i] & fed], 1.0)
+    np.testing.assert_array_equal(hits.toarray(), dense)
+    # canonical order (sorted by row, then column; unique, non-zero): what the sums rely on
+    key = hits.row * cloud.num + hits.col
+    assert (np.diff(key) > 0).all() and (hits.data > 0).all()
+    x = np.random.default_rng(seed + 1).random(cloud.num)
+    np.testing.assert_allclose(hits.matvec(x), dense.astype(np.float64) @ x, rtol=1e-12)
+    np.testing.assert_array_equal(hits.tocsr().toarray(), dense)
     occ = mask_occupancy(cloud, sv, 1, masks)
     assert occ.shape == (m, sv.num)
     assert (occ >= 0).all() and (occ <= 1).all()

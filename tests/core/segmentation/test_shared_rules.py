@@ -4,12 +4,12 @@ area, instance renumbering by score, node -> instance."""
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from clutt3r_core.baselines.common import mask_evidence
+from clutt3r_core.occupancy import VoxelHits
 from clutt3r_core.pipeline import instance_tree_json
 from clutt3r_core.segmentation.evidence import background_masks
 from clutt3r_core.segmentation.trees import TreeConfig, min_mask_area
@@ -20,7 +20,7 @@ from .._tiny_run import tiny_scene, tiny_segmentation
 
 def test_background_rule_cases():
     support = np.array([True, True, False, False])
-    hits = sp.csr_matrix(np.array([
+    hits = VoxelHits.from_dense(np.array([
         [5, 3, 0, 0],    # all on support -> background
         [2, 0, 2, 0],    # exactly half: not more than 0.5 -> object
         [0, 0, 0, 0],    # no 3D evidence at all -> background
@@ -28,7 +28,7 @@ def test_background_rule_cases():
         [3, 0, 1, 0],    # mostly on support -> background
     ], np.float32))
     np.testing.assert_array_equal(background_masks(hits, support, 0.5), [True, False, True, False, True])
-    assert background_masks(sp.csr_matrix((0, 4), dtype=np.float32), support, 0.5).shape == (0,)
+    assert background_masks(VoxelHits.from_dense(np.zeros((0, 4))), support, 0.5).shape == (0,)
 
 
 def test_pipeline_and_baselines_agree_on_background_masks():
