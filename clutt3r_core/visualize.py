@@ -8,6 +8,9 @@ from clutt3r_core.scene import Scene, View
 
 __all__ = ["instance_palette", "instance_overlay", "overview_sheet"]
 
+_FLOAT_RANKS = 2**24
+"""Depth ranks below this are exact in float32, so OpenCV's erosion can take their minimum."""
+
 
 def instance_palette(n: int, seed: int = 7) -> np.ndarray:
     """(n, 3) uint8 well-separated colours (golden-ratio hues), stable for a given n."""
@@ -28,9 +31,11 @@ def instance_overlay(points: np.ndarray, instance: np.ndarray, view: View, alpha
     is unlabelled keeps its colour.
 
     Computed as a z-buffer of the projections (each pixel's nearest point) followed by a
-    separable minimum filter of the points' depth ranks over the square: the same winner
-    as splatting every point at every offset (which took 2 s per 1080p view; issue 13),
-    in a few passes over the image.
+    minimum filter of the points' depth ranks over the square (OpenCV's erosion, over the box
+    of pixels the projections can reach): the same winner as splatting every point at every
+    offset (which took 2 s per 1080p view; issue 13). The winners' instances are then read
+    through one table lookup, so only the labelled pixels are handled one by one (on
+    sample_seq4 1080p: 0.25 M of the 2 M pixels a point reaches).
     """
     cam = view.camera
     lab = instance >= 0
@@ -52,26 +57,47 @@ def instance_overlay(points: np.ndarray, instance: np.ndarray, view: View, alpha
     # rank 0 = nearest point; the canvas holds each cell's smallest rank (len(idx) = none)
     nearest_first = np.argsort(z[idx], kind="stable")
     by_depth = idx[nearest_first]
-    Wp = W + 2 * r
-    cell = (v * Wp + u)[nearest_first]
-    first_cell, first_rank = np.unique(cell, return_index=True)  # each cell's first = nearest point
     none = len(idx)
-    rank_dtype = np.int32 if none < 2**31 - 1 else np.int64
-    canvas = np.full((H + 2 * r) * Wp, none, rank_dtype)
-    canvas[first_cell] = first_rank
-    canvas = canvas.reshape(H + 2 * r, Wp)
-    # separable minimum over the (2r+1)^2 square: along u, then along v
-    rows = canvas[:, 0:W].copy()
-    for d in range(1, 2 * r + 1):
-        np.minimum(rows, canvas[:, d : d + W], out=rows)
-    win = rows[0:H].copy()
-    for d in range(1, 2 * r + 1):
-        np.minimum(win, rows[d : d + H], out=win)
-    win = win.reshape(-1)
-    pix = np.flatnonzero(win < none)
-    ids = instance[by_depth[win[pix]]]
-    # pixels whose nearest point is unlabelled stay as they are
-    pix, ids = pix[ids >= 0], ids[ids >= 0]
+    # only the box of image pixels whose square can reach a projection is filtered (padded
+    # canvas: image pixel (y, x) takes the minimum over canvas rows y..y+2r, columns x..x+2r)
+    y0, y1 = max(int(v.min()) - 2 * r, 0), min(int(v.max()), H - 1)
+    x0, x1 = max(int(u.min()) - 2 * r, 0), min(int(u.max()), W - 1)
+    if y0 > y1 or x0 > x1:
+        return view.rgb.copy()
+    bh, bw = y1 - y0 + 1, x1 - x0 + 1
+    Wb = bw + 2 * r
+    cell = ((v - y0) * Wb + (u - x0))[nearest_first]
+    first_cell, first_rank = np.unique(cell, return_index=True)  # each cell's first = nearest point
+    if none < _FLOAT_RANKS:
+        # float32 holds every rank exactly, and OpenCV's erosion of a rectangle is the same
+        # minimum, far faster than numpy passes (r is 15 px at 1080p, 0.24 m)
+        import cv2
+
+        canvas = np.full((bh + 2 * r) * Wb, none, np.float32)
+        canvas[first_cell] = first_rank
+        canvas = canvas.reshape(bh + 2 * r, Wb)
+        win = cv2.erode(canvas, np.ones((2 * r + 1, 2 * r + 1), np.uint8), borderType=cv2.BORDER_REPLICATE)
+        win = win[r : r + bh, r : r + bw]
+    else:
+        canvas = np.full((bh + 2 * r) * Wb, none, np.int64)
+        canvas[first_cell] = first_rank
+        canvas = canvas.reshape(bh + 2 * r, Wb)
+        # separable minimum over the (2r+1)^2 square: along u, then along v
+        rows = canvas[:, 0:bw].copy()
+        for d in range(1, 2 * r + 1):
+            np.minimum(rows, canvas[:, d : d + bw], out=rows)
+        win = rows[0:bh].copy()
+        for d in range(1, 2 * r + 1):
+            np.minimum(win, rows[d : d + bh], out=win)
+    # each box pixel's instance through its winner's rank (a table lookup over the box); only
+    # pixels whose nearest point is labelled are painted, the others stay as they are
+    label_of = np.full(none + 1, -1, np.int32)
+    label_of[:none] = instance[by_depth]
+    ids = np.take(label_of, win.astype(np.intp)).reshape(-1)
+    hit = np.flatnonzero(ids >= 0)
+    ids = ids[hit]
+    hy, hx = np.divmod(hit, bw)
+    pix = (hy + y0) * W + (hx + x0)
     pal = instance_palette(int(instance.max()) + 1).astype(np.float32)
     out = view.rgb.copy()
     flat = out.reshape(-1, 3)

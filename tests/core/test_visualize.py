@@ -9,9 +9,11 @@ implementation, kept here as the reference), on points inside, around and behind
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from clutt3r_core import visualize
 from clutt3r_core.visualize import instance_overlay, instance_palette
 
 from ._geometry_scenes import make_views
@@ -65,7 +67,11 @@ def test_overlay_equals_splatting_every_offset(seed, n, radius):
                                   _splat_reference(pts, inst, view, radius=radius))
 
 
-def test_overlay_of_a_rendered_view_equals_the_reference():
+@pytest.mark.parametrize("float_ranks", [True, False], ids=["opencv-erode", "numpy-minimum"])
+def test_overlay_of_a_rendered_view_equals_the_reference(float_ranks, monkeypatch):
+    # numpy-minimum: the path of clouds with 2^24 points or more (ranks not exact in float32)
+    if not float_ranks:
+        monkeypatch.setattr(visualize, "_FLOAT_RANKS", 0)
     views = make_views(2)
     view = views[0]
     depth = views[1].depth
