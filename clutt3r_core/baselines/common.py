@@ -129,6 +129,7 @@ def mask_evidence(scene: Scene, config=None, clock: StageClock | None = None) ->
                 continue
             hits = mask_voxel_hits(cloud, vi, m.masks[keep])
             bg.append(background_masks(hits, support, cfg.background_fraction))
+            hits = hits.tocsr()
             hits.data[:] = 1.0  # a mask is the set of voxels it fed
             rows.append(hits)
             view.append(np.full(len(keep), vi, np.int32))
