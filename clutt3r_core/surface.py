@@ -225,10 +225,11 @@ def snap_to_surface(
     keys, lo, ext = _voxel_keys(P, vs, pad=1)  # an empty layer each side: every 6-neighbour key is valid
     inverse, counts = _group_keys(keys, ext)
     u = int(inverse.max()) + 1
-    ukeys = np.empty((3, u), np.int64)
-    for a in range(3):
-        ukeys[a, inverse] = keys[a]
-    del keys
+    # keys of each voxel from one of its points (any: they share the key): one scatter, small gathers
+    one = np.empty(u, np.intp)
+    one[inverse] = np.arange(n)
+    ukeys = np.stack([k[one] for k in keys]).astype(np.int64)
+    del keys, one
     # voxel centres relative to an origin near the scene (float32 keeps 0.1 um there)
     origin = lo * vs
     centres = ((ukeys.T + 0.5) * vs).astype(np.float32)  # (U, 3), world = origin + centres
