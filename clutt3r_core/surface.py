@@ -253,9 +253,12 @@ def snap_to_surface(
         hits = []
         for sign in (1, -1):
             q = lin + sign * st
-            j = np.searchsorted(lin, q)
-            j[j == u] = u - 1
-            hits.append((j, (lin[j] == q) & has[j]))
+            if st == 1:  # keys are sorted and distinct: the x-neighbour, if a candidate, is the next / previous
+                j = np.clip(np.arange(u) + sign, 0, u - 1)
+            else:
+                j = np.searchsorted(lin, q)
+                j[j == u] = u - 1
+            hits.append((j, (lin[j] == q) & has[j]))  # where not a hit, D[j] is read but not used
         lone = np.flatnonzero(has & ~hits[0][1] & ~hits[1][1])
         step = np.zeros(3, np.float32)
         step[a] = vs
