@@ -303,18 +303,33 @@ def _backproject_strided(view: View, stride: int, cfg: PointCloudConfig) -> tupl
     cam = view.camera
     z = view.depth[::stride, ::stride]
     ok = (z >= cfg.min_depth) & (z <= cfg.max_depth)  # NaN holes compare False
-    ws = z.shape[1]
-    idx = np.flatnonzero(ok)
-    zs = z.reshape(-1)[idx].astype(np.float32)
-    vs = (idx // ws) * stride
-    us = (idx % ws) * stride
-    x = (us.astype(np.float32) - np.float32(cam.cx)) * np.float32(1.0 / cam.fx) * zs
-    y = (vs.astype(np.float32) - np.float32(cam.cy)) * np.float32(1.0 / cam.fy) * zs
+    hs, ws = z.shape
+    zf = z if z.dtype == np.float32 else z.astype(np.float32)
+    # (u - cx) / fx once per column and (v - cy) / fy once per row, times the depth on the
+    # whole strided grid, then the valid pixels picked: the same float32 operations in the
+    # same order as per pixel, without gathering per-pixel u, v (0.6x the CPU, issue 13)
+    xt = (np.arange(0, ws * stride, stride).astype(np.float32) - np.float32(cam.cx)) * np.float32(1.0 / cam.fx)
+    yt = (np.arange(0, hs * stride, stride).astype(np.float32) - np.float32(cam.cy)) * np.float32(1.0 / cam.fy)
+    zs = zf[ok]
+    with np.errstate(invalid="ignore", over="ignore"):  # holes and out-of-range depth are dropped
+        x = (xt[None, :] * zf)[ok]
+        y = (yt[:, None] * zf)[ok]
     T = cam.T_world_camera.astype(np.float32)
-    pw = np.empty((len(idx), 3), np.float32)
-    for a in range(3):
-        pw[:, a] = T[a, 0] * x + T[a, 1] * y + T[a, 2] * zs + T[a, 3]
-    return pw, vs * cam.width + us
+    n = len(zs)
+    pw = np.empty((n, 3), np.float32)
+    acc, tmp = np.empty(n, np.float32), np.empty(n, np.float32)
+    for a in range(3):  # T[a, 0] x + T[a, 1] y + T[a, 2] z + T[a, 3], in place, left to right
+        np.multiply(x, T[a, 0], out=acc)
+        np.multiply(y, T[a, 1], out=tmp)
+        acc += tmp
+        np.multiply(zs, T[a, 2], out=tmp)
+        acc += tmp
+        acc += T[a, 3]
+        pw[:, a] = acc
+    if stride == 1 and ws == cam.width:
+        return pw, np.flatnonzero(ok)
+    pix = (np.arange(hs, dtype=np.int64) * (stride * cam.width))[:, None] + np.arange(0, ws * stride, stride)
+    return pw, pix[ok]
 
 
 # Largest dense grid indexed directly (ours: 2^24 cells = 16 MB of bool marks plus

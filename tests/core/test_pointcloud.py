@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from clutt3r_core.errors import SceneError
-from clutt3r_core.pointcloud import FusedCloud, PointCloudConfig, auto_stride, fuse_views
+from clutt3r_core.pointcloud import FusedCloud, PointCloudConfig, _backproject_strided, auto_stride, fuse_views
 from clutt3r_core.scene import Camera, View
 from tests.core._geometry_scenes import BOX_MAX, make_views
 
@@ -35,6 +35,31 @@ def test_backproject_project_round_trip(yaw, pitch, tx, ty, tz, f, seed):
     np.testing.assert_allclose(uv[:, 0], pix % 32, atol=1e-6)
     np.testing.assert_allclose(uv[:, 1], pix // 32, atol=1e-6)
     np.testing.assert_allclose(z, depth.reshape(-1)[pix], rtol=1e-9)
+
+
+@settings(max_examples=40, deadline=None)
+@given(stride=st.integers(1, 5), holes=st.floats(0, 1), seed=st.integers(0, 2**31 - 1),
+       f64=st.booleans(), yaw=st.floats(-np.pi, np.pi))
+def test_strided_backprojection_matches_the_camera(stride, holes, seed, f64, yaw):
+    """The fusion's float32 grid back-projection (per-row / per-column factors) gives the valid
+    pixels of ``Camera.backproject`` on the same stride grid, range filter applied, in
+    row-major order, at float32 precision."""
+    rng = np.random.default_rng(seed)
+    T = np.eye(4)
+    T[:3, :3] = [[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]]
+    T[:3, 3] = rng.uniform(-1, 1, 3)
+    cam = Camera(np.array([[300.0, 0, 15.5], [0, 310.0, 11.5], [0, 0, 1]]), 33, 25, T)
+    depth = rng.uniform(0.05, 4.0, (25, 33))
+    depth[rng.random(depth.shape) < holes] = np.nan
+    depth = depth if f64 else depth.astype(np.float32)
+    cfg = PointCloudConfig(min_depth=0.2, max_depth=3.0)
+    pw, pix = _backproject_strided(View(0, np.zeros((25, 33, 3), np.uint8), cam, depth=depth), stride, cfg)
+    ref, ref_pix = cam.backproject(depth.astype(np.float32).astype(np.float64), stride=stride)
+    z = depth.reshape(-1)[ref_pix].astype(np.float32)
+    keep = (z >= cfg.min_depth) & (z <= cfg.max_depth)
+    np.testing.assert_array_equal(pix, ref_pix[keep])
+    assert pw.dtype == np.float32 and pw.shape == (int(keep.sum()), 3)
+    np.testing.assert_allclose(pw, ref[keep], atol=1e-5)
 
 
 def test_fused_points_lie_on_the_scene_and_provenance_is_consistent():
