@@ -340,6 +340,7 @@ _DENSE_GRID_CELLS = 1 << 24
 def _compact(lin: np.ndarray, ncells: int) -> tuple[np.ndarray, int]:
     """Rank of each key among the distinct keys of ``lin`` (values in 0..ncells-1), by
     marking a dense bool grid: O(P + cells), no sort. Returns ((P,) int32, distinct count)."""
+    lin = lin.astype(np.intp)  # fancy indexing casts int32 indices on every use: once (issue 13)
     occ = np.zeros(ncells, dtype=bool)
     occ[lin] = True
     occupied = np.flatnonzero(occ)
@@ -449,8 +450,11 @@ def fuse_views(views: Sequence[View], cfg: PointCloudConfig = PointCloudConfig()
     del inverse, remap
     cnt = counts[keep]
     denom = np.maximum(cnt, 1)[:, None]
-    mean = np.stack([np.bincount(vox, weights=P[:, a], minlength=n + 1)[:n] for a in range(3)], axis=1) / denom
-    cmean = np.stack([np.bincount(vox, weights=C[:, a], minlength=n + 1)[:n] for a in range(3)], axis=1) / denom
+    # np.bincount casts int32 bins to intp on every call: once here for the six sums (issue 13)
+    vox_p = vox.astype(np.intp)
+    mean = np.stack([np.bincount(vox_p, weights=P[:, a], minlength=n + 1)[:n] for a in range(3)], axis=1) / denom
+    cmean = np.stack([np.bincount(vox_p, weights=C[:, a], minlength=n + 1)[:n] for a in range(3)], axis=1) / denom
+    del vox_p
     del P, C
 
     pixel_pairs = []
