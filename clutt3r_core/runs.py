@@ -105,12 +105,14 @@ def save_run(seg, out: str | Path, scene_root: str | Path | None = None) -> Path
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    # points and normals are stored, not deflated: float32 coordinates shrink by only 13-15 %
+    # at zlib level 1 for 0.12 s of CPU per 640x480 8-view run (about 0.6 MB more; issue 13)
     atomic_write_npz(
         out / "instances.npz", points=seg.points.astype(np.float32), colors=seg.colors.astype(np.uint8),
-        instance=seg.instance.astype(np.int32), scores=seg.scores.astype(np.float32))
+        instance=seg.instance.astype(np.int32), scores=seg.scores.astype(np.float32), stored=("points",))
     atomic_write_npz(
         out / "cloud.npz", normals=seg.normals.astype(np.float32), counts=seg.counts.astype(np.int32),
-        sv_labels=seg.sv_labels.astype(np.int32), sv_support=seg.sv_support.astype(bool))
+        sv_labels=seg.sv_labels.astype(np.int32), sv_support=seg.sv_support.astype(bool), stored=("normals",))
     atomic_write_bytes(out / "instances.ply", ply_bytes(seg.points, seg.colors, seg.instance))
     atomic_write_bytes(out / "instance_tree.json", json.dumps(instance_tree_json(seg), indent=1).encode())
     save_trace(seg.trace, out / "trace")

@@ -321,26 +321,34 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
 NPZ_COMPRESSLEVEL = 1
 
 
-def npz_bytes(**arrays: np.ndarray) -> bytes:
+def npz_bytes(*, stored: Iterable[str] = (), **arrays: np.ndarray) -> bytes:
     """``arrays`` as the bytes of a compressed ``.npz`` without touching disk: the layout of
     ``np.savez_compressed`` (one deflated ``NAME.npy`` member per array), at zlib level
-    ``NPZ_COMPRESSLEVEL``."""
+    ``NPZ_COMPRESSLEVEL``. The arrays named in ``stored`` are members without compression
+    (np.load reads either): float coordinates deflate by only 13-15 % for most of the CPU."""
     import io
+    import time
 
     from numpy.lib import format as npy_format
 
+    stored = set(stored)
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED, compresslevel=NPZ_COMPRESSLEVEL) as zf:
         for name, value in arrays.items():
-            with zf.open(name + ".npy", "w", force_zip64=True) as f:
+            member: str | zipfile.ZipInfo = name + ".npy"
+            if name in stored:
+                member = zipfile.ZipInfo(name + ".npy", date_time=time.localtime(time.time())[:6])
+                member.compress_type = zipfile.ZIP_STORED
+            with zf.open(member, "w", force_zip64=True) as f:
                 npy_format.write_array(f, np.asanyarray(value), allow_pickle=True)
     return buf.getvalue()
 
 
-def atomic_write_npz(path: str | Path, **arrays: np.ndarray) -> None:
+def atomic_write_npz(path: str | Path, *, stored: Iterable[str] = (), **arrays: np.ndarray) -> None:
     """Write ``arrays`` as a compressed ``.npz`` atomically (every compressed npz the tool saves goes
-    through here; the query cache and the annotation log write theirs uncompressed with np.savez)."""
-    atomic_write_bytes(path, npz_bytes(**arrays))
+    through here; the query cache and the annotation log write theirs uncompressed with np.savez);
+    ``stored``: as in ``npz_bytes``."""
+    atomic_write_bytes(path, npz_bytes(stored=stored, **arrays))
 
 
 def write_png(path: str | Path, img: np.ndarray) -> None:

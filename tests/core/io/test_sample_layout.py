@@ -80,3 +80,14 @@ def test_npz_bytes_reads_back_as_savez_compressed_would():
             got = z[k]
             assert got.dtype == np.asarray(v).dtype and got.shape == np.shape(v)
             np.testing.assert_array_equal(got, v)
+    # members named in ``stored`` are written without compression and read back the same
+    data = npz_bytes(stored=("points", "empty"), **arrays)
+    with zipfile.ZipFile(io.BytesIO(data)) as zf:
+        kinds = {i.filename: i.compress_type for i in zf.infolist()}
+    assert kinds == {k + ".npy": zipfile.ZIP_STORED if k in ("points", "empty") else zipfile.ZIP_DEFLATED
+                     for k in arrays}
+    with np.load(io.BytesIO(data)) as z:
+        for k, v in arrays.items():
+            got = z[k]
+            assert got.dtype == np.asarray(v).dtype and got.shape == np.shape(v)
+            np.testing.assert_array_equal(got, v)
