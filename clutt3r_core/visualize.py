@@ -99,9 +99,13 @@ def instance_overlay(points: np.ndarray, instance: np.ndarray, view: View, alpha
     hy, hx = np.divmod(hit, bw)
     pix = (hy + y0) * W + (hx + x0)
     pal = instance_palette(int(instance.max()) + 1).astype(np.float32)
+    # the blend (float32, truncated to uint8) of every (instance, channel, value), looked up per
+    # painted pixel: the same numbers as blending each pixel, without its float passes
+    lut = np.clip((1 - alpha) * np.arange(256, dtype=np.float32) + alpha * pal[:, :, None], 0, 255).astype(np.uint8)
     out = view.rgb.copy()
     flat = out.reshape(-1, 3)
-    flat[pix] = np.clip((1 - alpha) * flat[pix].astype(np.float32) + alpha * pal[ids], 0, 255).astype(np.uint8)
+    at = (ids[:, None] * 3 + np.arange(3)) * 256 + flat[pix]
+    flat[pix] = np.take(lut.reshape(-1), at)
     return out
 
 
