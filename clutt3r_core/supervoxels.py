@@ -47,6 +47,8 @@ import numpy as np
 from clutt3r_core.errors import SceneError
 from clutt3r_core.normals import knn_query, knn_tree
 from clutt3r_core.pointcloud import FusedCloud
+from clutt3r_core.graph_ops import connected_components
+from clutt3r_core.support import fit_plane_ransac, mark_support
 
 __all__ = ["SuperVoxelConfig", "SuperVoxels", "build_supervoxels", "fit_plane_ransac"]
 
@@ -187,75 +189,6 @@ class SuperVoxels:
         return self.support[self.labels]
 
 
-def fit_plane_ransac(
-    points: np.ndarray,
-    distance: float,
-    iterations: int = 500,
-    seed: int = 0,
-    max_eval: int = 4000,
-    normals: np.ndarray | None = None,
-    min_normal_dot: float = 0.0,
-) -> tuple[np.ndarray, np.ndarray] | None:
-    """Dominant plane of ``points`` (N, 3) by RANSAC, refined by least squares on its inliers.
-
-    Hypotheses are scored on a random subset of at most ``max_eval`` points (all
-    hypotheses at once, vectorised). With ``normals`` (N, 3), an inlier must also have
-    |<normal, plane normal>| >= ``min_normal_dot``. Returns ([nx, ny, nz, d] with unit n
-    and arbitrary sign, (N,) bool inliers) or None for fewer than 3 points.
-    """
-    pts = np.asarray(points, dtype=np.float64)
-    n = pts.shape[0]
-    if n < 3:
-        return None
-    use_n = normals is not None and min_normal_dot > 0
-    nr = np.asarray(normals, dtype=np.float64) if use_n else None
-
-    def inliers(q: np.ndarray, qn: np.ndarray | None, pl: np.ndarray) -> np.ndarray:
-        ok = np.abs(q @ pl[:3] + pl[3]) <= distance
-        if qn is not None:
-            ok &= np.abs(qn @ pl[:3]) >= min_normal_dot
-        return ok
-
-    rng = np.random.default_rng(seed)
-    sel = np.arange(n) if n <= max_eval else rng.choice(n, max_eval, replace=False)
-    ev, evn = pts[sel], (nr[sel] if use_n else None)
-    tri = rng.integers(0, n, size=(iterations, 3))
-    a, b, c = pts[tri[:, 0]], pts[tri[:, 1]], pts[tri[:, 2]]
-    nrm = np.cross(b - a, c - a)
-    norm = np.linalg.norm(nrm, axis=1)
-    good = norm > 1e-12
-    if not good.any():
-        return None
-    nrm = nrm[good] / norm[good, None]
-    d = -np.einsum("ij,ij->i", nrm, a[good])
-    # Score in chunks so that (hypotheses x points) stays small.
-    # Scoring is the hot part: float32 and chunks of 100 hypotheses keep it to a few ms.
-    ev32, nrm32, d32 = ev.astype(np.float32), nrm.astype(np.float32), d.astype(np.float32)
-    evn32 = evn.astype(np.float32) if use_n else None
-    scores = []
-    for i in range(0, len(d), 100):
-        ok = np.abs(ev32 @ nrm32[i : i + 100].T + d32[i : i + 100]) <= distance
-        if use_n:
-            ok &= np.abs(evn32 @ nrm32[i : i + 100].T) >= min_normal_dot
-        scores.append(ok.sum(axis=0))
-    scores = np.concatenate(scores)
-    best = int(np.argmax(scores))
-    plane = np.append(nrm[best], d[best])
-    # Two least-squares refinements over the inliers: the normal is the eigenvector of
-    # the smallest eigenvalue of the 3x3 scatter of the centred inliers (the last right
-    # singular vector of their SVD, without the (P, 3) U factor that made the SVD slow).
-    for _ in range(2):
-        inl = inliers(pts, nr, plane)
-        if inl.sum() < 3:
-            break
-        q = pts[inl]
-        cen = q.mean(axis=0)
-        q -= cen
-        normal = np.linalg.eigh(q.T @ q)[1][:, 0]
-        plane = np.append(normal, -normal @ cen)
-    return plane, inliers(pts, nr, plane)
-
-
 def _knn_edges(
     points: np.ndarray, k: int, max_dist: float, neighbours: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -380,153 +313,6 @@ _EDGE_BLOCK = 1 << 14
 _ROUNDING_MARGIN = 4.0 * 3.0**0.5
 
 
-def _components(n: int, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """(n,) int32 connected component of each vertex of the undirected graph with edges
-    (src, dst), numbered in the order of each component's smallest vertex: scipy's
-    ``connected_components(directed=False)`` labels (tests/core/test_supervoxels.py).
-
-    Vectorised min-label hooking with pointer jumping (Shiloach-Vishkin style): every
-    vertex points to a smaller or equal one, roots are hooked onto the smallest root they
-    share an edge with, and each round ends with every vertex pointing at its root; edges
-    inside one tree are dropped for good. The root of a component is its smallest vertex.
-    Rounds: 4 on a hard 640x480 scene's 1.4 M merge edges, about scipy's time (45 ms), and
-    ``scipy.sparse.csgraph`` is not imported: its package init loads scipy.sparse.linalg and
-    scipy.linalg, 0.1-0.2 s per process that did nothing else with them (issue 13).
-    """
-    f = np.arange(n, dtype=np.int32)
-    u, v = np.asarray(src, np.int32), np.asarray(dst, np.int32)
-    fu, fv = u, v  # first round: hook vertices themselves
-    while len(u):
-        np.minimum.at(f, np.maximum(fu, fv), np.minimum(fu, fv))
-        while True:  # pointer jumping until every vertex points at its root
-            ff = f[f]
-            if np.array_equal(ff, f):
-                break
-            f = ff
-        fu, fv = f[u], f[v]
-        keep = fu != fv  # an edge inside one tree stays inside it
-        if not keep.any():
-            break
-        u, v, fu, fv = u[keep], v[keep], fu[keep], fv[keep]
-    lab = np.cumsum(f == np.arange(n, dtype=np.int32), dtype=np.int32) - 1
-    return lab[f]
-
-
-def _ranges(starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
-    """(sum(ends - starts),) int64: the concatenated ranges starts[i]:ends[i]."""
-    lens = ends - starts
-    total = int(lens.sum())
-    if not total:
-        return np.zeros(0, np.int64)
-    # each position's offset from its range's first element, plus that element
-    first = np.cumsum(lens) - lens
-    return np.arange(total, dtype=np.int64) + np.repeat(starts - first, lens)
-
-
-def _group_extent(values: np.ndarray, labels: np.ndarray, k: int) -> np.ndarray:
-    """(K, D) max - min of ``values`` (N, D) per label (every label must occur)."""
-    order = np.argsort(labels, kind="stable")
-    v = values[order]
-    starts = np.flatnonzero(np.r_[True, np.diff(labels[order]) != 0])
-    return np.maximum.reduceat(v, starts, axis=0) - np.minimum.reduceat(v, starts, axis=0)
-
-
-def _patch_extent(uvh: np.ndarray, comp: np.ndarray, members: np.ndarray) -> np.ndarray:
-    """(N,) extent (largest bounding-box side) of the connected patch of each member voxel, 0 elsewhere."""
-    out = np.zeros(len(comp))
-    if members.any():
-        c = comp[members]
-        _, inv = np.unique(c, return_inverse=True)
-        ext = _group_extent(uvh[members], inv, int(inv.max()) + 1).max(axis=1)
-        out[members] = ext[inv]
-    return out
-
-
-def _mark_support(
-    cloud: FusedCloud,
-    labels: np.ndarray,
-    k: int,
-    counts: np.ndarray,
-    src: np.ndarray,
-    dst: np.ndarray,
-    dist: np.ndarray,
-    cfg: SuperVoxelConfig,
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """(support (K,) bool, plane or None); the rule is in the module doc."""
-    pts = cloud.points.astype(np.float64)
-    nrm = cloud.normals.astype(np.float64)
-    n = pts.shape[0]
-    fit = fit_plane_ransac(pts, cfg.plane_distance, cfg.plane_iterations, cfg.plane_seed)
-    if fit is None or fit[1].mean() < cfg.plane_min_inliers:
-        return np.zeros(k, bool), None
-    plane, _ = fit
-    # Orient the normal towards the cameras (or, without camera centres, along the
-    # fused normals, which fuse_views already orients towards the cameras).
-    if cloud.camera_centres is not None and len(cloud.camera_centres):
-        side = np.sum(cloud.camera_centres @ plane[:3] + plane[3])
-    else:
-        side = np.sum(nrm[np.abs(pts @ plane[:3] + plane[3]) <= cfg.plane_distance] @ plane[:3])
-    if side < 0:
-        plane = -plane
-    h = pts @ plane[:3] + plane[3]
-    # rule 2: below the support plane, or on it and facing along its normal. The normal
-    # test keeps the lowest centimetre of objects that stand on the support (their sides
-    # face sideways) and of thin objects lying on it (a hammer handle) out of the support.
-    facing = np.abs(nrm @ plane[:3]) >= np.cos(np.deg2rad(cfg.patch_max_angle))
-    bad = (h < -cfg.plane_distance) | ((h <= cfg.plane_distance) & facing)
-
-    # Plane frame (e1, e2 in the plane, h along its normal) for extents.
-    nz = plane[:3]
-    e1 = np.cross(nz, [1.0, 0.0, 0.0] if abs(nz[0]) < 0.9 else [0.0, 1.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(nz, e1)
-    uvh = np.column_stack([pts @ e1, pts @ e2, h])
-
-    # Rule 3: further large planar patches (tray walls, rims, a raised tray floor).
-    near = dist <= 2.0 * cloud.voxel_size  # patch connectivity: k-NN pairs within two voxels
-    near_src, near_dst = src[near], dst[near]
-    del near
-    if len(near_src) > 1 and np.any(near_src[1:] < near_src[:-1]):  # the k-NN edges come sorted
-        order = np.argsort(near_src, kind="stable")
-        near_src, near_dst = near_src[order], near_dst[order]
-    # edges out of voxel i: near_ptr[i]:near_ptr[i + 1] (a plane's patch graph gathers only
-    # its members' edges: masking all 1.2 M edges per plane was a third of this function)
-    near_ptr = np.zeros(n + 1, np.int64)
-    np.cumsum(np.bincount(near_src, minlength=n), out=near_ptr[1:])
-    slot = np.empty(n, np.int32)  # a voxel's index among the current plane's inliers
-    min_dot = float(np.cos(np.deg2rad(cfg.patch_max_angle)))
-    min_inl = max(cfg.patch_min_voxels, 3)
-    free = ~bad
-    for it in range(cfg.max_planes):
-        idx = np.flatnonzero(free)
-        if len(idx) < min_inl:
-            break
-        fit = fit_plane_ransac(
-            pts[idx], cfg.plane_distance, cfg.plane_iterations, cfg.plane_seed + 1 + it,
-            normals=nrm[idx], min_normal_dot=min_dot,
-        )
-        if fit is None or fit[1].sum() < min_inl:
-            break
-        inl = np.zeros(n, bool)
-        inl[idx[fit[1]]] = True
-        free &= ~inl  # never re-fit these voxels, large patch or not
-        # patches: components of the inliers' own graph (a few thousand voxels, not all N)
-        members = np.flatnonzero(inl)
-        e = _ranges(near_ptr[members], near_ptr[members + 1])  # edges out of members, in order
-        e = e[inl[near_dst[e]]]
-        slot[members] = np.arange(len(members), dtype=np.int32)
-        comp = np.zeros(n, np.int64)
-        comp[members] = _components(len(members), slot[near_src[e]], slot[near_dst[e]])
-        big = _patch_extent(uvh, comp, inl) >= cfg.max_object_extent
-        bad |= big
-
-    w = cloud.counts.astype(np.float64)
-    frac = np.bincount(labels, weights=w * bad, minlength=k) / np.maximum(counts, 1)
-    ext = _group_extent(uvh, labels, k).max(axis=1)
-    support = (frac >= cfg.support_fraction) | (ext >= cfg.max_object_extent)
-    return support, plane
-
-
 def build_supervoxels(cloud: FusedCloud, cfg: SuperVoxelConfig = SuperVoxelConfig()) -> SuperVoxels:
     """Cluster the voxels of ``cloud`` into super-voxels (eq. 1) and mark the support."""
     n = cloud.num
@@ -548,12 +334,12 @@ def build_supervoxels(cloud: FusedCloud, cfg: SuperVoxelConfig = SuperVoxelConfi
         if cfg.absolute_normal_dot:
             dot = np.abs(dot)
         merge[e] = cfg.alpha * dist[e] + cfg.beta * (1.0 - dot) <= cfg.tau_merge
-    labels = _components(n, src[merge], dst[merge]).astype(np.int32)
+    labels = connected_components(n, src[merge], dst[merge]).astype(np.int32)
     k = int(labels.max()) + 1
     counts = np.bincount(labels, weights=cloud.counts, minlength=k).round().astype(np.int64)
     weights = counts / max(int(counts.sum()), 1)
     if cfg.support_removal:
-        support, plane = _mark_support(cloud, labels, k, counts, src, dst, dist, cfg)
+        support, plane = mark_support(cloud, labels, k, counts, src, dst, dist, cfg)
     else:
         support, plane = np.zeros(k, bool), None
     return SuperVoxels(

@@ -1,0 +1,192 @@
+"""Support (table / tray) marking over super-voxels, and the RANSAC plane fit it uses.
+
+The rule is stated in :mod:`clutt3r_core.supervoxels`' module docstring (ours; findings
+point 4); it lives here so that module stays about clustering (eq. 1).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from clutt3r_core.graph_ops import concat_ranges, connected_components
+from clutt3r_core.pointcloud import FusedCloud
+
+if TYPE_CHECKING:
+    from clutt3r_core.supervoxels import SuperVoxelConfig
+
+__all__ = ["fit_plane_ransac", "mark_support"]
+
+
+def fit_plane_ransac(
+    points: np.ndarray,
+    distance: float,
+    iterations: int = 500,
+    seed: int = 0,
+    max_eval: int = 4000,
+    normals: np.ndarray | None = None,
+    min_normal_dot: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Dominant plane of ``points`` (N, 3) by RANSAC, refined by least squares on its inliers.
+
+    Hypotheses are scored on a random subset of at most ``max_eval`` points (all
+    hypotheses at once, vectorised). With ``normals`` (N, 3), an inlier must also have
+    |<normal, plane normal>| >= ``min_normal_dot``. Returns ([nx, ny, nz, d] with unit n
+    and arbitrary sign, (N,) bool inliers) or None for fewer than 3 points.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    n = pts.shape[0]
+    if n < 3:
+        return None
+    use_n = normals is not None and min_normal_dot > 0
+    nr = np.asarray(normals, dtype=np.float64) if use_n else None
+
+    def inliers(q: np.ndarray, qn: np.ndarray | None, pl: np.ndarray) -> np.ndarray:
+        ok = np.abs(q @ pl[:3] + pl[3]) <= distance
+        if qn is not None:
+            ok &= np.abs(qn @ pl[:3]) >= min_normal_dot
+        return ok
+
+    rng = np.random.default_rng(seed)
+    sel = np.arange(n) if n <= max_eval else rng.choice(n, max_eval, replace=False)
+    ev, evn = pts[sel], (nr[sel] if use_n else None)
+    tri = rng.integers(0, n, size=(iterations, 3))
+    a, b, c = pts[tri[:, 0]], pts[tri[:, 1]], pts[tri[:, 2]]
+    nrm = np.cross(b - a, c - a)
+    norm = np.linalg.norm(nrm, axis=1)
+    good = norm > 1e-12
+    if not good.any():
+        return None
+    nrm = nrm[good] / norm[good, None]
+    d = -np.einsum("ij,ij->i", nrm, a[good])
+    # Score in chunks so that (hypotheses x points) stays small.
+    # Scoring is the hot part: float32 and chunks of 100 hypotheses keep it to a few ms.
+    ev32, nrm32, d32 = ev.astype(np.float32), nrm.astype(np.float32), d.astype(np.float32)
+    evn32 = evn.astype(np.float32) if use_n else None
+    scores = []
+    for i in range(0, len(d), 100):
+        ok = np.abs(ev32 @ nrm32[i : i + 100].T + d32[i : i + 100]) <= distance
+        if use_n:
+            ok &= np.abs(evn32 @ nrm32[i : i + 100].T) >= min_normal_dot
+        scores.append(ok.sum(axis=0))
+    scores = np.concatenate(scores)
+    best = int(np.argmax(scores))
+    plane = np.append(nrm[best], d[best])
+    # Two least-squares refinements over the inliers: the normal is the eigenvector of
+    # the smallest eigenvalue of the 3x3 scatter of the centred inliers (the last right
+    # singular vector of their SVD, without the (P, 3) U factor that made the SVD slow).
+    for _ in range(2):
+        inl = inliers(pts, nr, plane)
+        if inl.sum() < 3:
+            break
+        q = pts[inl]
+        cen = q.mean(axis=0)
+        q -= cen
+        normal = np.linalg.eigh(q.T @ q)[1][:, 0]
+        plane = np.append(normal, -normal @ cen)
+    return plane, inliers(pts, nr, plane)
+
+
+def _group_extent(values: np.ndarray, labels: np.ndarray, k: int) -> np.ndarray:
+    """(K, D) max - min of ``values`` (N, D) per label (every label must occur)."""
+    order = np.argsort(labels, kind="stable")
+    v = values[order]
+    starts = np.flatnonzero(np.r_[True, np.diff(labels[order]) != 0])
+    return np.maximum.reduceat(v, starts, axis=0) - np.minimum.reduceat(v, starts, axis=0)
+
+
+def _patch_extent(uvh: np.ndarray, comp: np.ndarray, members: np.ndarray) -> np.ndarray:
+    """(N,) extent (largest bounding-box side) of the connected patch of each member voxel, 0 elsewhere."""
+    out = np.zeros(len(comp))
+    if members.any():
+        c = comp[members]
+        _, inv = np.unique(c, return_inverse=True)
+        ext = _group_extent(uvh[members], inv, int(inv.max()) + 1).max(axis=1)
+        out[members] = ext[inv]
+    return out
+
+
+def mark_support(
+    cloud: FusedCloud,
+    labels: np.ndarray,
+    k: int,
+    counts: np.ndarray,
+    src: np.ndarray,
+    dst: np.ndarray,
+    dist: np.ndarray,
+    cfg: SuperVoxelConfig,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """(support (K,) bool, plane or None); the rule is in the module doc."""
+    pts = cloud.points.astype(np.float64)
+    nrm = cloud.normals.astype(np.float64)
+    n = pts.shape[0]
+    fit = fit_plane_ransac(pts, cfg.plane_distance, cfg.plane_iterations, cfg.plane_seed)
+    if fit is None or fit[1].mean() < cfg.plane_min_inliers:
+        return np.zeros(k, bool), None
+    plane, _ = fit
+    # Orient the normal towards the cameras (or, without camera centres, along the
+    # fused normals, which fuse_views already orients towards the cameras).
+    if cloud.camera_centres is not None and len(cloud.camera_centres):
+        side = np.sum(cloud.camera_centres @ plane[:3] + plane[3])
+    else:
+        side = np.sum(nrm[np.abs(pts @ plane[:3] + plane[3]) <= cfg.plane_distance] @ plane[:3])
+    if side < 0:
+        plane = -plane
+    h = pts @ plane[:3] + plane[3]
+    # rule 2: below the support plane, or on it and facing along its normal. The normal
+    # test keeps the lowest centimetre of objects that stand on the support (their sides
+    # face sideways) and of thin objects lying on it (a hammer handle) out of the support.
+    facing = np.abs(nrm @ plane[:3]) >= np.cos(np.deg2rad(cfg.patch_max_angle))
+    bad = (h < -cfg.plane_distance) | ((h <= cfg.plane_distance) & facing)
+
+    # Plane frame (e1, e2 in the plane, h along its normal) for extents.
+    nz = plane[:3]
+    e1 = np.cross(nz, [1.0, 0.0, 0.0] if abs(nz[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(nz, e1)
+    uvh = np.column_stack([pts @ e1, pts @ e2, h])
+
+    # Rule 3: further large planar patches (tray walls, rims, a raised tray floor).
+    near = dist <= 2.0 * cloud.voxel_size  # patch connectivity: k-NN pairs within two voxels
+    near_src, near_dst = src[near], dst[near]
+    del near
+    if len(near_src) > 1 and np.any(near_src[1:] < near_src[:-1]):  # the k-NN edges come sorted
+        order = np.argsort(near_src, kind="stable")
+        near_src, near_dst = near_src[order], near_dst[order]
+    # edges out of voxel i: near_ptr[i]:near_ptr[i + 1] (a plane's patch graph gathers only
+    # its members' edges: masking all 1.2 M edges per plane was a third of this function)
+    near_ptr = np.zeros(n + 1, np.int64)
+    np.cumsum(np.bincount(near_src, minlength=n), out=near_ptr[1:])
+    slot = np.empty(n, np.int32)  # a voxel's index among the current plane's inliers
+    min_dot = float(np.cos(np.deg2rad(cfg.patch_max_angle)))
+    min_inl = max(cfg.patch_min_voxels, 3)
+    free = ~bad
+    for it in range(cfg.max_planes):
+        idx = np.flatnonzero(free)
+        if len(idx) < min_inl:
+            break
+        fit = fit_plane_ransac(
+            pts[idx], cfg.plane_distance, cfg.plane_iterations, cfg.plane_seed + 1 + it,
+            normals=nrm[idx], min_normal_dot=min_dot,
+        )
+        if fit is None or fit[1].sum() < min_inl:
+            break
+        inl = np.zeros(n, bool)
+        inl[idx[fit[1]]] = True
+        free &= ~inl  # never re-fit these voxels, large patch or not
+        # patches: components of the inliers' own graph (a few thousand voxels, not all N)
+        members = np.flatnonzero(inl)
+        e = concat_ranges(near_ptr[members], near_ptr[members + 1])  # edges out of members, in order
+        e = e[inl[near_dst[e]]]
+        slot[members] = np.arange(len(members), dtype=np.int32)
+        comp = np.zeros(n, np.int64)
+        comp[members] = connected_components(len(members), slot[near_src[e]], slot[near_dst[e]])
+        big = _patch_extent(uvh, comp, inl) >= cfg.max_object_extent
+        bad |= big
+
+    w = cloud.counts.astype(np.float64)
+    frac = np.bincount(labels, weights=w * bad, minlength=k) / np.maximum(counts, 1)
+    ext = _group_extent(uvh, labels, k).max(axis=1)
+    support = (frac >= cfg.support_fraction) | (ext >= cfg.max_object_extent)
+    return support, plane
