@@ -29,6 +29,7 @@ from typing import Literal
 import numpy as np
 
 from clutt3r_core.errors import SceneError
+from clutt3r_core.graph_ops import concat_ranges
 from clutt3r_core.pointcloud import FusedCloud
 from clutt3r_core.scene import MaskCandidates
 from clutt3r_core.segmentation.trees import mask_codes
@@ -165,8 +166,8 @@ def mask_voxel_hits(cloud: FusedCloud, view_index: int, masks: np.ndarray | Mask
     np.cumsum(per_code[:-1], out=start[1:])
     rep = per_code[pcode]
     pair = np.repeat(np.arange(len(pvox)), rep)  # (E,) the pair of each (pair, mask) entry
-    base = np.repeat(np.cumsum(rep) - rep, rep)
-    mask_of = cm_mask[start[pcode][pair] + (np.arange(len(pair)) - base)]
+    lo = start[pcode]  # each pair's code's first entry in (cm_code, cm_mask)
+    mask_of = cm_mask[concat_ranges(lo, lo + rep)]
     # Entries are in voxel order; a stable sort by the (small) mask index (radix sort for
     # 16-bit keys) puts them in (mask, voxel) order, where a voxel fed by several codes
     # of one mask has adjacent entries to sum.
@@ -185,7 +186,7 @@ def mask_occupancy(
     cloud: FusedCloud,
     sv: SuperVoxels,
     view_index: int,
-    masks: np.ndarray,
+    masks: np.ndarray | MaskCandidates,
     cfg: OccupancyConfig = OccupancyConfig(),
     hits: VoxelHits | None = None,
 ) -> np.ndarray:
@@ -208,10 +209,9 @@ def mask_occupancy(
     scale = np.divide(c, fed, out=np.zeros(n), where=fed > 0)
     # num = hits @ member with member (N, K) = scale on (n, label_n): a weighted sum of
     # each hit row into its super-voxels, done on the hits' non-zeros only.
-    h = hits
-    m = h.shape[0]
+    m = hits.shape[0]
     num = np.bincount(
-        h.row * k + sv.labels[h.col], weights=h.data.astype(np.float64) * scale[h.col],
+        hits.row * k + sv.labels[hits.col], weights=hits.data.astype(np.float64) * scale[hits.col],
         minlength=m * k,
     ).astype(np.float64, copy=False).reshape(m, k)  # (bincount of nothing is int64)
     if cfg.normalise == "visible":
