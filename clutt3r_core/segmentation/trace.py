@@ -160,6 +160,16 @@ def _tree_from_json(d: dict) -> InstanceTree:
     )
 
 
+def _nan_as_null(record) -> dict:
+    """A dataclass record's fields with NaN as None: strict JSON (``_null_as_nan`` reads it back)."""
+    return {k: (None if isinstance(x, float) and x != x else x) for k, x in asdict(record).items()}
+
+
+def _null_as_nan(fields: dict) -> dict:
+    """The fields ``_nan_as_null`` wrote, None back to NaN."""
+    return {k: (float("nan") if x is None else x) for k, x in fields.items()}
+
+
 def save_trace(trace: Trace, folder: str | Path) -> Path:
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -202,11 +212,10 @@ def save_trace(trace: Trace, folder: str | Path) -> Path:
         "timings": [asdict(t) for t in trace.timings],
         "config": config_to_json(trace.config),
     }
-    if trace.surface is not None:  # NaN (not measured) as null: strict JSON
-        meta["surface"] = {k: (None if isinstance(x, float) and x != x else x) for k, x in asdict(trace.surface).items()}
-    if g.stops is not None:  # NaN (no pair left) is written as null: strict JSON
-        meta["stops"] = [{k: (None if isinstance(x, float) and x != x else x) for k, x in asdict(st).items()}
-                         for st in g.stops]
+    if trace.surface is not None:  # NaN: not measured
+        meta["surface"] = _nan_as_null(trace.surface)
+    if g.stops is not None:  # NaN: no pair left
+        meta["stops"] = [_nan_as_null(st) for st in g.stops]
     atomic_write_bytes(folder / "trace.json", json.dumps(meta, indent=1).encode())
     return folder
 
@@ -245,8 +254,7 @@ def load_trace(folder: str | Path) -> Trace:
         merges=tuple(MergeStep(**{**m, "a": tup(m["a"]), "b": tup(m["b"])}) for m in meta["merges"]),
         substitutions=tuple(Substitution(**{**s, "replaced": tup(s["replaced"])}) for s in meta["substitutions"]),
         events=tuple((str(k), int(i)) for k, i in meta["events"]),
-        stops=tuple(StageStop(**{k: (float("nan") if x is None else x) for k, x in st.items()})
-                    for st in meta["stops"]) if "stops" in meta else None,
+        stops=tuple(StageStop(**_null_as_nan(st)) for st in meta["stops"]) if "stops" in meta else None,
         blocked=BlockedPairs(*(z[f"blocked_{f}"] for f in ("stop", "a", "b", "rule", "score")))
         if "blocked_stop" in z else None,
         residuals=ResidualNotes(*(z[f"residual_{f}"] for f in ("node", "round", "reason", "other")))
@@ -272,6 +280,5 @@ def load_trace(folder: str | Path) -> Trace:
         timings=tuple(StageTiming(**t) for t in meta["timings"]),
         embedder=meta["embedder"],
         config=config,
-        surface=SurfaceChoice(**{k: (float("nan") if x is None else x) for k, x in meta["surface"].items()})
-        if "surface" in meta else None,
+        surface=SurfaceChoice(**_null_as_nan(meta["surface"])) if "surface" in meta else None,
     )
