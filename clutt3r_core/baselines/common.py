@@ -127,7 +127,9 @@ def mask_evidence(scene: Scene, config=None, clock: StageClock | None = None) ->
             keep = order[m.areas()[order] >= min_area] if len(m) else order
             if len(keep) == 0:
                 continue
-            hits = mask_voxel_hits(cloud, vi, m.masks[keep])
+            # the kept candidates, sharing the view's code image (m.masks would build and keep
+            # the whole (M, H, W) stack on the view; issue 13)
+            hits = mask_voxel_hits(cloud, vi, m.select(keep))
             bg.append(background_masks(hits, support, cfg.background_fraction))
             hits = hits.tocsr()
             hits.data[:] = 1.0  # a mask is the set of voxels it fed
