@@ -88,9 +88,7 @@ def depth_disagreement(
         pick = ok[np.linspace(0, len(ok) - 1, min(samples_per_view, len(ok))).astype(np.intp)]
         row, col = np.divmod(pick, za.shape[1])
         d = za.reshape(-1)[pick].astype(np.float64)
-        pc = np.stack([(col * sa - cam_a.cx) / cam_a.fx * d, (row * sa - cam_a.cy) / cam_a.fy * d, d], axis=1)
-        Twc = cam_a.T_world_camera
-        pw = pc @ Twc[:3, :3].T + Twc[:3, 3]
+        pw = cam_a.pixels_to_world(col * sa, row * sa, d)
         for b, (cam_b, sb, zb) in enumerate(grids):
             if b == a:
                 continue
