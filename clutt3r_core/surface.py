@@ -434,7 +434,7 @@ def surface_points(views, P, C, pix_list, offsets, strides, cfg):
 
     ``surface="auto"`` measures the views' depth disagreement (``depth_agreement``) and runs
     the surface estimate when it is at least ``cfg.surface_auto_sigma``. Returns ``P``, ``C``,
-    ``pix_list`` and ``offsets`` as ``snap_raw_points`` does (unchanged when the estimate does not
+    ``pix_list`` and ``offsets`` as ``_snap_and_filter`` does (unchanged when the estimate does not
     run) and the ``SurfaceChoice``.
     """
     params = SurfaceParams(voxel_size=cfg.voxel_size, min_points=cfg.surface_min_points, min_depth=cfg.min_depth,
