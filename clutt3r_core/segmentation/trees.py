@@ -125,19 +125,13 @@ def mask_overlaps(masks: np.ndarray | MaskCandidates) -> np.ndarray:
     """(M, M) int64 pixel intersection counts of a (M, H, W) bool stack or of mask candidates
     (diagonal = areas).
 
-    Factorises the pixels by the set of masks containing them (``mask_codes``; stored already
-    by ``MaskCandidates``) and accumulates over the few hundred distinct sets instead of M^2
-    full-image passes.
+    ``MaskCandidates.overlaps``: the pixels factorised by the set of masks containing them (a
+    stack is encoded as candidates first), accumulated over the few hundred distinct sets
+    instead of M^2 full-image passes.
     """
-    if isinstance(masks, MaskCandidates):
-        return masks.overlaps()
-    m = masks.shape[0]
-    if m == 0:
-        return np.zeros((0, 0), np.int64)
-    label, bits = mask_codes(masks.reshape(m, -1))
-    counts = np.bincount(label, minlength=len(bits))
-    b = bits.astype(np.int64)
-    return b.T @ (b * counts[:, None])
+    if not isinstance(masks, MaskCandidates):
+        masks = MaskCandidates(masks, np.arange(len(masks)))
+    return masks.overlaps()
 
 
 def min_mask_area(cfg: TreeConfig, height: int, width: int) -> int:
