@@ -68,20 +68,18 @@ def instance_overlay(points: np.ndarray, instance: np.ndarray, view: View, alpha
     Wb = bw + 2 * r
     cell = ((v - y0) * Wb + (u - x0))[nearest_first]
     first_cell, first_rank = np.unique(cell, return_index=True)  # each cell's first = nearest point
+    # float32 holds every rank below _FLOAT_RANKS exactly, for OpenCV's erosion
+    canvas = np.full((bh + 2 * r) * Wb, none, np.float32 if none < _FLOAT_RANKS else np.int64)
+    canvas[first_cell] = first_rank
+    canvas = canvas.reshape(bh + 2 * r, Wb)
     if none < _FLOAT_RANKS:
-        # float32 holds every rank exactly, and OpenCV's erosion of a rectangle is the same
-        # minimum, far faster than numpy passes (r is 15 px at 1080p, 0.24 m)
+        # OpenCV's erosion of a rectangle is the same minimum, far faster than numpy passes
+        # (r is 15 px at 1080p, 0.24 m)
         import cv2
 
-        canvas = np.full((bh + 2 * r) * Wb, none, np.float32)
-        canvas[first_cell] = first_rank
-        canvas = canvas.reshape(bh + 2 * r, Wb)
         win = cv2.erode(canvas, np.ones((2 * r + 1, 2 * r + 1), np.uint8), borderType=cv2.BORDER_REPLICATE)
         win = win[r : r + bh, r : r + bw]
     else:
-        canvas = np.full((bh + 2 * r) * Wb, none, np.int64)
-        canvas[first_cell] = first_rank
-        canvas = canvas.reshape(bh + 2 * r, Wb)
         # separable minimum over the (2r+1)^2 square: along u, then along v
         rows = canvas[:, 0:bw].copy()
         for d in range(1, 2 * r + 1):
