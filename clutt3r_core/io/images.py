@@ -243,11 +243,7 @@ def read_masks(paths: Iterable[str | Path], expect_hw: tuple[int, int] | None = 
     each twice)."""
     fast = True
     for p in paths:
-        p = Path(p)
-        m = _read_mask(p, expect_hw, fast)
-        if m is None:
-            fast = False
-            m = _read_mask(p, expect_hw, False)
+        m, fast = _read_mask(Path(p), expect_hw, fast)
         yield m
 
 
@@ -260,24 +256,23 @@ def read_mask(path: str | Path, expect_hw: tuple[int, int] | None = None) -> np.
     2 MB image and 1 ms more to threshold; this takes a fraction of that (issue 13, 1080p
     whole-command time). Any other PNG goes to OpenCV. The result is the same either way.
     """
-    path = Path(path)
-    m = _read_mask(path, expect_hw, True)
-    return m if m is not None else _read_mask(path, expect_hw, False)
+    return _read_mask(Path(path), expect_hw, True)[0]
 
 
-def _read_mask(path: Path, expect_hw: tuple[int, int] | None, fast: bool) -> np.ndarray | None:
-    """``read_mask`` by ``_sub_png_mask`` (``fast``; None when the file is not such a PNG) or by OpenCV."""
+def _read_mask(path: Path, expect_hw: tuple[int, int] | None, fast: bool) -> tuple[np.ndarray, bool]:
+    """(``read_mask``, whether ``_sub_png_mask`` decoded it): that path is tried when ``fast``,
+    OpenCV decodes the file otherwise and when it is not such a PNG (the file is read and
+    checked once either way)."""
     data = _read_checked(path)
-    if fast:
-        m = _sub_png_mask(data) if bytes(data[:8]) == _PNG_SIGNATURE else None
-        if m is not None:
-            _check_hw(path, m, expect_hw, "mask")
-        return m
+    m = _sub_png_mask(data) if fast and bytes(data[:8]) == _PNG_SIGNATURE else None
+    if m is not None:
+        _check_hw(path, m, expect_hw, "mask")
+        return m, True
     img = _decode(path, data, cv2.IMREAD_UNCHANGED)
     if img.ndim == 3:
         img = img[:, :, :3].max(axis=2)
     _check_hw(path, img, expect_hw, "mask")
-    return img > 0
+    return img > 0, False
 
 
 def read_label_png(path: str | Path, expect_hw: tuple[int, int] | None = None) -> np.ndarray:
