@@ -33,9 +33,9 @@ from pathlib import Path
 import numpy as np
 
 from clutt3r_core.errors import SceneError, SceneFileError
-from clutt3r_core.io.images import io_threads, read_depth_mm, read_mask, read_masks, read_rgb
-from clutt3r_core.io.sample_layout import _read_json, _scan_masks
-from clutt3r_core.scene import Camera, GroundTruth, MaskCandidates, ObjectInfo, Scene, View, check_rigid
+from clutt3r_core.io.images import io_threads, read_depth_mm, read_mask, read_rgb
+from clutt3r_core.io.sample_layout import _read_candidates, _read_json, _scan_masks
+from clutt3r_core.scene import Camera, GroundTruth, ObjectInfo, Scene, View, check_rigid
 
 __all__ = ["load_bop_scene", "is_bop_scene", "paint_instances", "voxel_labelled_points", "GT_POINT_VOXEL_M"]
 
@@ -262,10 +262,7 @@ def load_bop_scene(
             raise SceneFileError(dpath, f"initial image {im} has no depth file")
         masks = None
         if cands is not None:
-            items = cands.get(im, [])
-            # encoded as decoded, one mask at a time (no (M, H, W) stack; issue 13)
-            masks = MaskCandidates.from_masks(read_masks([p for _, p in items], (h, w)),
-                                              np.array([i for i, _ in items], np.int32), (h, w))
+            masks = _read_candidates(cands.get(im, []), (h, w))
         imap = None
         if use_vis:
             n = len(gt_lists[im])

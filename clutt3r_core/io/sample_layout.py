@@ -97,6 +97,14 @@ def _scan_masks(mask_dir: Path) -> dict[int, list[tuple[int, Path]]]:
     return by_frame
 
 
+def _read_candidates(items: list[tuple[int, Path]], hw: tuple[int, int]) -> MaskCandidates:
+    """One view's mask candidates from its ``_scan_masks`` entries (id, path), each mask encoded
+    as it is decoded: no (M, H, W) stack is ever held (issue 13: the 1080p stacks were 240 MiB
+    of the command's peak)."""
+    ids = np.array([i for i, _ in items], np.int32)
+    return MaskCandidates.from_masks(read_masks([p for _, p in items], hw), ids, hw)
+
+
 def _frame_roles(
     root: Path, frames: list[int], has_depth: dict[int, bool]
 ) -> tuple[list[int], list[int], Path | None]:
@@ -201,11 +209,7 @@ def load_sample_layout(root: str | Path, *, load_masks: bool = True, load_gt: bo
             depth.setflags(write=False)  # View takes a frozen depth map as is (no copy)
         masks = None
         if load_masks and mask_dir.is_dir():
-            items = masks_by_frame.get(frame, [])
-            # encoded as they are decoded, one mask at a time: no (M, H, W) stack is ever
-            # held (issue 13: the 1080p stacks were 240 MiB of the command's peak)
-            masks = MaskCandidates.from_masks(read_masks([p for _, p in items], hw),
-                                              np.array([i for i, _ in items], np.int32), hw)
+            masks = _read_candidates(masks_by_frame.get(frame, []), hw)
         return View(frame=frame, rgb=rgb, camera=cam, depth=depth, masks=masks, name=ipath.name)
 
     with ThreadPoolExecutor(io_threads()) as pool:
