@@ -113,8 +113,7 @@ def depth_changes(state, view: View, config: UpdateConfig, assoc: Association, s
     stay = np.array(sorted(in_place), np.int32)
     explained = explained_pixels(state.points, state.instance, stay, cam, depth, voxel, cc.in_place_tol)
     fits: dict = {}
-    hidden = {int(k) for k in unsure if int(k) not in in_place | moved
-              and np.count_nonzero(state.instance == k) >= ac.min_points}
+    hidden = {int(k) for k in unsure if int(k) not in in_place | moved and int(k) in big}
     if not moved and not hidden:
         return DepthChanges(pc, frozenset(in_place), frozenset(moved), fits, explained, 0)
     occ = project_instances(state.points, state.instance, stay, cam, voxel).depth if len(stay) else None
