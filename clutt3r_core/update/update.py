@@ -163,13 +163,13 @@ def update_scene(
         pc = photo_check(state.points, state.colors, state.instance, ids, cam, view.rgb, voxel,
                          tol_min=cc.photo_tol_min, tol_sigma=cc.photo_tol_sigma, search_px=cc.photo_search_px,
                          context_radius=cc.photo_context_radius, context_share=cc.photo_context_share)
-        for k in ids:
+        for i, k in enumerate(ids):
             k = int(k)
             if pc.judged(k, cc.photo_min_points, cc.photo_min_informative):
                 f = pc.fraction(k)
                 photo[k] = ("in-place" if f >= cc.photo_in_place_fraction
                             else "gone" if f <= cc.photo_gone_fraction else "present")
-            elif np.count_nonzero(state.instance == k) < cc.photo_fragment_points:
+            elif proj_all.n_points[i] < cc.photo_fragment_points:
                 photo[k] = "fragment"  # ChangeConfig.photo_fragment_points
         if details is not None:
             details.photo, details.photo_verdict = pc, photo
