@@ -314,12 +314,11 @@ class _Solver:
         # state then stays at zero, so the SE(3) fine stage starts from the yaw result)
         return params["w"] * self.rot_mask
 
-    def matrix(self, params, R=None) -> np.ndarray:
-        """The motion at ``params``; ``R``: their rotation when the loss just computed it (the
-        same values: autograd does not change the forward arithmetic)."""
+    def matrix(self, params, R) -> np.ndarray:
+        """The motion at ``params``, whose rotation ``R`` the loss just computed (``last_R``: the
+        same values as computing it again; autograd does not change the forward arithmetic)."""
         with self.torch.no_grad():
-            R = self.rotation(self.rotvec(params)).numpy() if R is None else R.detach().numpy()
-            return motion_matrix(R, self.c, params["t"].numpy()) @ self.T_init
+            return motion_matrix(R.detach().numpy(), self.c, params["t"].numpy()) @ self.T_init
 
     # -- one evaluation ------------------------------------------------------------------
     def losses(self, params, stage: StageConfig):
