@@ -34,7 +34,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from clutt3r_core.scene import View
-from clutt3r_core.update.associate import Association, project_instances
+from clutt3r_core.update.associate import Association, project_depth
 from clutt3r_core.update.depth import (PlaceCheck, Registration, explained_pixels, mask_points, place_check,
                                        register, start_rotations)
 from clutt3r_core.update.project import mask_iou, silhouette
@@ -116,7 +116,7 @@ def depth_changes(state, view: View, config: UpdateConfig, assoc: Association, s
     hidden = {int(k) for k in unsure if int(k) not in in_place | moved and int(k) in big}
     if not moved and not hidden:
         return DepthChanges(pc, frozenset(in_place), frozenset(moved), fits, explained, 0)
-    occ = project_instances(state.points, state.instance, stay, cam, voxel).depth if len(stay) else None
+    occ = project_depth(state.points, state.instance, stay, cam, voxel) if len(stay) else None
     masks = view.masks
     H, W = masks.shape
     valid = np.isfinite(depth) & (depth > 0)

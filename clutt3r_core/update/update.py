@@ -37,7 +37,8 @@ import numpy as np
 from clutt3r_core.errors import SceneError
 from clutt3r_core.scene import MaskCandidates, View
 from clutt3r_core.segmentation.trees import build_instance_tree
-from clutt3r_core.update.associate import Association, Projection, associate, project_instances, unmatched_status
+from clutt3r_core.update.associate import (Association, Projection, associate, project_depth, project_instances,
+                                           unmatched_status)
 from clutt3r_core.update.depth_change import depth_changes, fit_iou, registration_result
 from clutt3r_core.update.photo_change import PhotoCheck, photo_at_pose, photo_check
 from clutt3r_core.update.project import mask_iou
@@ -91,14 +92,13 @@ def _hidden_by_moved(records: list[InstanceUpdate], state: SceneState, proj_all:
     for k, T in moved.items():
         sel = state.instance == k
         pts[sel] = pts[sel] @ T[:3, :3].T + T[:3, 3]
-    after = project_instances(pts.astype(np.float32), state.instance, np.array(sorted(moved), np.int32), cam, voxel,
-                              scale)
+    after = project_depth(pts.astype(np.float32), state.instance, np.array(sorted(moved), np.int32), cam, voxel, scale)
     out = []
     for r in records:
         if r.status == "removed":
             vis = proj_all.label == r.instance
             n = int(np.count_nonzero(vis))
-            if n and np.count_nonzero(after.depth[vis] < proj_all.depth[vis] - margin) >= fraction * n:
+            if n and np.count_nonzero(after[vis] < proj_all.depth[vis] - margin) >= fraction * n:
                 r = replace(r, status="occluded", match=(r.match + "+" if r.match else "") + "hidden-by-moved")
         out.append(r)
     return out
@@ -214,7 +214,7 @@ def update_scene(
     records: list[InstanceUpdate] = []
     static_ids = np.array([k for k in present if int(k) not in displaced and (dc is None or int(k) not in dc.moved)],
                           np.int32)
-    occ_proj = project_instances(state.points, state.instance, static_ids, cam, voxel, scale) if displaced else None
+    occ_depth = project_depth(state.points, state.instance, static_ids, cam, voxel, scale) if displaced else None
     for i, k in enumerate(ids):
         k = int(k)
         mi = int(assoc.mask_index[i])
@@ -229,11 +229,11 @@ def update_scene(
             m_k = masks.masks[fit.mask_index]
             ib = mask_iou(proj.label == k, m_k)  # the paper's IoU before, for the record
             T, res = fit.registration.T_world, registration_result(fit.registration, state.points[sel], cam, voxel,
-                                                                   occ_proj.depth, m_k, ib)
+                                                                   occ_depth, m_k, ib)
             if config.pose.refine_registration:
                 res = optimizer.optimize(PoseProblem(
                     instance=k, points=state.points[sel], colors=state.colors[sel], camera=cam, rgb=view.rgb,
-                    mask=m_k, occluder_depth=occ_proj.depth, depth=view.depth, voxel_size=voxel, T_init=T))
+                    mask=m_k, occluder_depth=occ_depth, depth=view.depth, voxel_size=voxel, T_init=T))
                 T = res.T_world
             if k not in dc.moved and config.change.verify and not _moved(
                     replace(res, T_world=T), state.points[sel].astype(np.float64).mean(axis=0), -1.0, config):
@@ -241,7 +241,7 @@ def update_scene(
                 records.append(InstanceUpdate(k, "static", ib, ib, None, int(masks.ids[fit.mask_index]),
                                               "depth-registration", pose=res))
                 continue
-            ia = fit_iou(state.points[sel], T, cam, voxel, occ_proj.depth, m_k)
+            ia = fit_iou(state.points[sel], T, cam, voxel, occ_depth, m_k)
             new_mask[k] = m_k
             records.append(InstanceUpdate(k, "displaced", ib, ia, T, int(masks.ids[fit.mask_index]),
                                           "depth-registration", pose=res))
@@ -266,15 +266,15 @@ def update_scene(
             sel = state.instance == k
             pb = PoseProblem(
                 instance=k, points=state.points[sel], colors=state.colors[sel], camera=cam, rgb=view.rgb,
-                mask=new_mask[k], occluder_depth=occ_proj.depth, depth=view.depth, voxel_size=voxel,
+                mask=new_mask[k], occluder_depth=occ_depth, depth=view.depth, voxel_size=voxel,
             )
             res = optimizer.optimize(pb)
             worse = False
             if pc is not None and cc.verify and cc.photo_verify_fit:
                 # the colours must support the move at least as much as staying (ours)
-                n1, f1 = photo_at_pose(pb.points, pb.colors, res.T_world, cam, view.rgb, voxel, occ_proj.depth,
+                n1, f1 = photo_at_pose(pb.points, pb.colors, res.T_world, cam, view.rgb, voxel, occ_depth,
                                        pc.gain, pc.tol, cc.photo_search_px)
-                n0, f0 = photo_at_pose(pb.points, pb.colors, np.eye(4), cam, view.rgb, voxel, occ_proj.depth,
+                n0, f0 = photo_at_pose(pb.points, pb.colors, np.eye(4), cam, view.rgb, voxel, occ_depth,
                                        pc.gain, pc.tol, cc.photo_search_px)
                 worse = min(n0, n1) >= cc.photo_min_points and f1 < f0
             if config.change.verify and "semantic" in assoc.match[i] and (
