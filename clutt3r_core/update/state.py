@@ -39,6 +39,7 @@ __all__ = [
     "state_from_run",
     "state_from_segmentation",
     "apply_update",
+    "moved_points",
     "save_state",
     "load_state",
     "latest_state",
@@ -177,14 +178,20 @@ def state_from_run(run_dir: str | Path) -> SceneState:
     return state_from_segmentation(seg, voxel_size=voxel, run=run_dir)
 
 
+def moved_points(state: SceneState, motions: dict[int, np.ndarray]) -> np.ndarray:
+    """(N, 3) float64 stored points, those of each instance ``k`` in ``motions`` moved by
+    ``motions[k]`` ((4, 4) world motion), the others as stored."""
+    pts = state.points.astype(np.float64)  # a copy
+    for k, T in motions.items():
+        sel = state.instance == k
+        pts[sel] = pts[sel] @ T[:3, :3].T + T[:3, 3]
+    return pts
+
+
 def apply_update(state: SceneState, result: UpdateResult) -> SceneState:
     """The next state: displaced instances' points moved by their T_world, removed dropped,
     static and occluded unchanged; the update appended to the history."""
-    pts = state.points.astype(np.float64).copy()
-    for r in result.instances:
-        if r.status == "displaced":
-            sel = state.instance == r.instance
-            pts[sel] = pts[sel] @ r.T_world[:3, :3].T + r.T_world[:3, 3]
+    pts = moved_points(state, {r.instance: r.T_world for r in result.instances if r.status == "displaced"})
     removed = np.array(result.by_status("removed"), np.int32)
     keep = ~np.isin(state.instance, removed)
     keep_ids = ~np.isin(state.instance_ids, removed)

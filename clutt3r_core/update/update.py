@@ -42,7 +42,7 @@ from clutt3r_core.update.associate import (Association, Projection, associate, p
 from clutt3r_core.update.depth_change import depth_changes, fit_iou, registration_result
 from clutt3r_core.update.photo_change import PhotoCheck, photo_at_pose, photo_check
 from clutt3r_core.update.project import mask_iou
-from clutt3r_core.update.state import SceneState
+from clutt3r_core.update.state import SceneState, moved_points
 from clutt3r_core.update.types import TAU_SEM_BY_EMBEDDER, InstanceUpdate, NewMask, PoseProblem, UpdateConfig, UpdateResult
 
 __all__ = ["update_scene", "UpdateDetails"]
@@ -88,11 +88,8 @@ def _hidden_by_moved(records: list[InstanceUpdate], state: SceneState, proj_all:
     gone = [r for r in records if r.status == "removed"]
     if not moved or not gone:
         return records
-    pts = state.points.astype(np.float64).copy()
-    for k, T in moved.items():
-        sel = state.instance == k
-        pts[sel] = pts[sel] @ T[:3, :3].T + T[:3, 3]
-    after = project_depth(pts.astype(np.float32), state.instance, np.array(sorted(moved), np.int32), cam, voxel, scale)
+    after = project_depth(moved_points(state, moved).astype(np.float32), state.instance,
+                          np.array(sorted(moved), np.int32), cam, voxel, scale)
     out = []
     for r in records:
         if r.status == "removed":
