@@ -371,6 +371,30 @@ class ChangeConfig:
     pixels, voxel = the cloud's voxel size (5 mm, Sec. IV), so neighbouring points close the
     silhouette."""
 
+    def __post_init__(self) -> None:
+        # A mistyped fraction (70 for 0.7) or a negative size would silently flag or keep
+        # everything; fail at construction naming the field instead.
+        fractions = ("tau_iou", "min_fit_iou", "in_place_fraction", "accept_fitness", "accept_consistency",
+                     "accept_iou", "accept_iou_hidden", "min_rest_fraction", "max_fit_overlap",
+                     "photo_context_share", "photo_min_informative", "photo_in_place_fraction",
+                     "hidden_by_moved_fraction", "photo_gone_fraction")
+        for name in fractions:
+            v = getattr(self, name)
+            if not 0.0 <= v <= 1.0:
+                raise SceneError(f"ChangeConfig.{name} must be in [0, 1], got {v}")
+        for name in ("min_translation", "min_rotation_deg", "in_place_tol", "min_place_points", "photo_tol_min",
+                     "photo_tol_sigma", "photo_search_px", "photo_context_radius", "photo_min_points",
+                     "photo_fragment_points"):
+            v = getattr(self, name)
+            if v < 0:
+                raise SceneError(f"ChangeConfig.{name} must be >= 0, got {v}")
+        if self.splat_scale <= 0 or self.max_extent_ratio <= 0:
+            raise SceneError(f"ChangeConfig.splat_scale and max_extent_ratio must be > 0, got "
+                             f"{self.splat_scale}, {self.max_extent_ratio}")
+        if self.photo_gone_fraction > self.photo_in_place_fraction:
+            raise SceneError(f"ChangeConfig.photo_gone_fraction ({self.photo_gone_fraction}) must not exceed "
+                             f"photo_in_place_fraction ({self.photo_in_place_fraction})")
+
 
 @dataclass(frozen=True)
 class UpdateConfig:

@@ -161,3 +161,20 @@ def test_lazy_mask_embeddings_match_the_eager_ones_and_skip_spatial_matches():
     spatial = {int(m) for m, how in zip(lazy.mask_index, lazy.match) if how == "spatial"}
     assert spatial and not spatial & set(asked)  # the static box's mask was never embedded
     assert np.all(np.isnan(lazy.s_semantic[sorted(spatial)]))
+
+
+@pytest.mark.parametrize(
+    "kw, field",
+    [({"tau_iou": 75.0}, "tau_iou"), ({"max_fit_overlap": -0.1}, "max_fit_overlap"),
+     ({"photo_fragment_points": -1}, "photo_fragment_points"), ({"splat_scale": 0.0}, "splat_scale"),
+     ({"photo_gone_fraction": 0.8}, "photo_gone_fraction")],
+)
+def test_change_config_rejects_out_of_range_values_naming_the_field(kw, field):
+    """A mistyped change-detection threshold (70 for 0.7, a negative size) fails at construction
+    with the field's name, instead of silently flagging or keeping every instance."""
+    from clutt3r_core.errors import SceneError
+    from clutt3r_core.update.types import ChangeConfig
+
+    with pytest.raises(SceneError, match=field):
+        ChangeConfig(**kw)
+    ChangeConfig()  # the defaults themselves are valid
