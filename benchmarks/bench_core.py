@@ -75,10 +75,18 @@ def _naive_spatial_similarity(occupancy, weights, eps=1e-9):
     return inter / (union + eps)
 
 
-def _naive_mask_voxel_hits(cloud, view_index, masks):
+def _stack(masks):
+    """The (M, H, W) bool stack the pre-optimisation code read (the core now passes the compact
+    ``MaskCandidates``; building the stack is part of what the naive core cost)."""
+    from clutt3r_core.scene import MaskCandidates
+
+    return masks.masks if isinstance(masks, MaskCandidates) else masks
+
+
+def _naive_csr_hits(cloud, view_index, masks):
     from clutt3r_core.occupancy import _check_masks, _view_pixels
 
-    masks = _check_masks(cloud, view_index, masks)
+    masks = _check_masks(cloud, view_index, _stack(masks))
     pix, vox = _view_pixels(cloud, view_index)
     m = masks.shape[0]
     sub = masks.reshape(m, masks.shape[1] * masks.shape[2])[:, pix]
@@ -90,10 +98,20 @@ def _naive_mask_voxel_hits(cloud, view_index, masks):
     return hits
 
 
+def _naive_mask_voxel_hits(cloud, view_index, masks):
+    """The scipy CSR of the old code, handed on as the ``VoxelHits`` the core now takes (the
+    same canonical entries)."""
+    from clutt3r_core.occupancy import VoxelHits
+
+    h = _naive_csr_hits(cloud, view_index, masks)
+    row = np.repeat(np.arange(h.shape[0], dtype=np.int64), np.diff(h.indptr))
+    return VoxelHits(row, h.indices.astype(np.int64), h.data.astype(np.float32), h.shape)
+
+
 def _naive_mask_occupancy(cloud, sv, view_index, masks, cfg, hits=None):
     from clutt3r_core.occupancy import _view_pixels
 
-    hits = _naive_mask_voxel_hits(cloud, view_index, masks)  # recomputed, as before
+    hits = _naive_csr_hits(cloud, view_index, masks)  # recomputed, as before
     n, k = cloud.num, sv.num
     _, vox = _view_pixels(cloud, view_index)
     fed = np.bincount(vox, minlength=n).astype(np.float64)
@@ -110,6 +128,7 @@ def _naive_mask_occupancy(cloud, sv, view_index, masks, cfg, hits=None):
 
 
 def _naive_mask_overlaps(masks):
+    masks = _stack(masks)
     m = masks.shape[0]
     if m == 0:
         return np.zeros((0, 0), np.int64)
@@ -128,6 +147,7 @@ def _naive_mask_overlaps(masks):
 def _naive_embed_masks(self, rgb, masks):
     import cv2
 
+    masks = _stack(masks)
     m = masks.shape[0]
     out = np.zeros((m, self.dim), np.float32)
     if m == 0:
@@ -241,7 +261,7 @@ def naive_core():
         mock.patch("clutt3r_core.pipeline._node_table", _naive_node_table),
         mock.patch("clutt3r_core.segmentation.trees.mask_overlaps", _naive_mask_overlaps),
         mock.patch.object(AppearanceEmbedder, "embed_masks", _naive_embed_masks),
-        mock.patch("clutt3r_core.supervoxels.fit_plane_ransac", _naive_fit_plane_ransac),
+        mock.patch("clutt3r_core.support.fit_plane_ransac", _naive_fit_plane_ransac),
         mock.patch("clutt3r_core.pointcloud._group_keys", _naive_group_keys),
     ]
     with contextlib.ExitStack() as stack:
