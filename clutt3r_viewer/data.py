@@ -157,7 +157,7 @@ class ViewerData:
         v = self.views[int(n.view[i])]
         if v.masks is None:
             return None
-        return v.masks.masks[v.masks.index_of(int(n.mask_id[i]))]
+        return v.masks.mask(v.masks.index_of(int(n.mask_id[i])))  # one mask: .masks would build and keep the whole stack
 
     def node_points(self, i: int) -> np.ndarray:
         """(N,) bool: points of the super-voxels the node's mask covers at least the vote's
