@@ -7,7 +7,7 @@ from hypothesis import strategies as st
 
 from clutt3r_core.errors import SceneError
 from clutt3r_core.pointcloud import FusedCloud, fuse_views
-from clutt3r_core.supervoxels import SuperVoxelConfig, SuperVoxels, _knn_edges, build_supervoxels, fit_plane_ransac
+from clutt3r_core.supervoxels import SuperVoxelConfig, SuperVoxels, _knn_edges, build_supervoxels
 from tests.core._geometry_scenes import BOX_MAX, make_views
 
 
@@ -89,16 +89,6 @@ def test_eq1_threshold_on_distance_and_normal_angle():
     # 3 cm apart: 0.5 * 0.03 = 0.015 > 0.01 even with equal normals
     sv = build_supervoxels(_line_cloud(np.tile([0.0, 0.0, 1.0], (3, 1)), spacing=0.03), cfg)
     assert sv.num == 3
-
-
-def test_ransac_finds_the_dominant_plane():
-    rng = np.random.default_rng(0)
-    plane_pts = np.column_stack([rng.uniform(-1, 1, (3000, 2)), rng.normal(0.3, 0.002, 3000)])
-    clutter = rng.uniform(-1, 1, (1000, 3))
-    plane, inl = fit_plane_ransac(np.vstack([plane_pts, clutter]), 0.01)
-    assert abs(abs(plane[2]) - 1) < 1e-3 and abs(abs(plane[3]) - 0.3) < 2e-3
-    assert inl[:3000].mean() > 0.99 and inl[3000:].mean() < 0.05
-    assert fit_plane_ransac(np.zeros((2, 3)), 0.01) is None
 
 
 def test_validation():
