@@ -83,8 +83,30 @@ def test_read_masks_falls_back_once_and_checks_sizes(tmp_path):
         read_mask(tmp_path / "b.png", (20, 31))
 
 
-def test_a_corrupt_deflate_stream_is_named(tmp_path):
-    """Chunk CRCs intact but the zlib stream broken: OpenCV's path reports the file."""
+@pytest.fixture(params=["zlib-ng", "zlib"])
+def inflater(request, monkeypatch):
+    """The module's inflater: zlib-ng (a core dependency, faster) and stdlib zlib (its fallback)."""
+    if request.param == "zlib":
+        monkeypatch.setattr(images, "_zlib", zlib)
+    else:
+        assert images._zlib is not zlib, "zlib_ng is a core dependency and should be installed"
+    return request.param
+
+
+def test_both_inflaters_decode_the_same_masks(tmp_path, inflater):
+    """zlib-ng and zlib give the same mask of every kind of image (the same inflated bytes)."""
+    for seed, (h, w), kind in ((0, (37, 53), 0), (1, (64, 9), 1), (2, (21, 40), 2), (3, (30, 200), 0)):
+        img = _image(seed, h, w, kind)
+        p = tmp_path / f"m{seed}.png"
+        p.write_bytes(_png(img, cv2.IMWRITE_PNG_FILTER_SUB))
+        fast = _sub_png_mask(np.fromfile(p, np.uint8))
+        assert fast is not None
+        np.testing.assert_array_equal(fast, img != 0)
+
+
+def test_a_corrupt_deflate_stream_is_named(tmp_path, inflater):
+    """Chunk CRCs intact but the zlib stream broken: OpenCV's path reports the file (either
+    inflater's error is caught: zlib_ng.error is not a zlib.error)."""
     img = _image(4, 16, 16, 0)
     raw = bytearray(_png(img, cv2.IMWRITE_PNG_FILTER_SUB))
     i = raw.index(b"IDAT")
