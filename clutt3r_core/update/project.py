@@ -91,6 +91,10 @@ class Splats:
         return out
 
 
+_RANK_LIMIT = 1 << 24
+"""Ranks below 2^24 are exact in float32 (``_zbuf_by_filter``); larger groups filter the z itself."""
+
+
 def _zbuf_by_filter(z: np.ndarray, u: np.ndarray, v: np.ndarray, r: np.ndarray, idx: np.ndarray,
                     u0: int, v0: int, h: int, w: int) -> np.ndarray:
     """(h * w,) nearest z per window pixel, the same values as the per-offset z-buffer of
@@ -110,11 +114,30 @@ def _zbuf_by_filter(z: np.ndarray, u: np.ndarray, v: np.ndarray, r: np.ndarray, 
         uu, vv = u[g] - u0 + rr, v[g] - v0 + rr
         ph, pw = h + 2 * rr, w + 2 * rr
         inside = (uu >= 0) & (uu < pw) & (vv >= 0) & (vv < ph)  # the rest cannot reach the window
-        cz = np.full(ph * pw, np.inf)
-        np.minimum.at(cz, vv[inside] * pw + uu[inside], z[g][inside])
-        zz = cv2.erode(cz.reshape(ph, pw), np.ones((2 * rr + 1, 2 * rr + 1), np.uint8),
-                       borderType=cv2.BORDER_CONSTANT, borderValue=np.inf)
-        np.minimum(out, zz[rr : rr + h, rr : rr + w], out=out)
+        zg = z[g][inside]
+        kernel = np.ones((2 * rr + 1, 2 * rr + 1), np.uint8)
+        if len(zg) < _RANK_LIMIT:
+            # the filter runs on each point's rank in z order, in float32 (exact below 2^24),
+            # and the ranks map back to their z: the minimum of ranks is the rank of the
+            # minimum, so the z-buffer is the same float64 values. OpenCV's float32 erosion is
+            # ~4x faster than its float64 one (measured on the pose fit's ~130x150 windows,
+            # where these filters were a third of a splat's CPU)
+            order = np.argsort(zg, kind="stable")
+            rank = np.empty(len(zg), np.float32)
+            rank[order] = np.arange(len(zg), dtype=np.float32)
+            cz = np.full(ph * pw, np.inf, np.float32)
+            np.minimum.at(cz, vv[inside] * pw + uu[inside], rank)
+            zr = cv2.erode(cz.reshape(ph, pw), kernel, borderType=cv2.BORDER_CONSTANT,
+                           borderValue=np.inf)[rr : rr + h, rr : rr + w]
+            hit = np.isfinite(zr)
+            zz = np.full((h, w), np.inf)
+            zz[hit] = zg[order][zr[hit].astype(np.int64)]
+        else:
+            cz = np.full(ph * pw, np.inf)
+            np.minimum.at(cz, vv[inside] * pw + uu[inside], zg)
+            zz = cv2.erode(cz.reshape(ph, pw), kernel, borderType=cv2.BORDER_CONSTANT,
+                           borderValue=np.inf)[rr : rr + h, rr : rr + w]
+        np.minimum(out, zz, out=out)
     return out.reshape(-1)
 
 
