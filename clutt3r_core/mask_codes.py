@@ -70,13 +70,17 @@ def encode_masks(rows: Iterable[np.ndarray], n_pixels: int) -> tuple[np.ndarray,
 def _compact(x: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     """(used (U,) int64: the values of ``x`` (P,) ints in [0, n) that occur, ascending; rank (P,)
     of each element's value among them, in the narrowest unsigned type)."""
-    import cv2
-
-    if n <= 1 << 16 and x.dtype in (np.uint8, np.uint16) and x.size:
-        # OpenCV's histogram of an 8/16-bit image: no int64 copy of x (np.bincount makes one)
-        used = np.flatnonzero(cv2.calcHist([x], [0], None, [n], [0, n]).reshape(-1))
-    elif n <= 1 << 22:
-        used = np.flatnonzero(np.bincount(x, minlength=n))
+    if n <= 1 << 22:
+        # every value that occurs starts a run of equal values (in pixel order), and a code
+        # image has few runs (its values change only at mask boundaries): counting the runs'
+        # values finds the same ones as counting every pixel. sample_seq4 1080p, 14 masks:
+        # 1.7 ms, OpenCV's 16-bit histogram of every pixel 13.7 ms (issue 13).
+        x = x.reshape(-1)
+        run = np.empty(x.shape, bool)
+        if x.size:
+            run[0] = True
+            np.not_equal(x[1:], x[:-1], out=run[1:])
+        used = np.flatnonzero(np.bincount(x[run], minlength=n))
     else:  # very many possible values: sort instead of counting
         used, inv = np.unique(x, return_inverse=True)
         return used, inv.reshape(-1).astype(_rank_dtype(len(used)))

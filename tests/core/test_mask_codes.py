@@ -38,3 +38,24 @@ def test_every_pixel_gets_exactly_its_masks(seed, m, p):
     codes = small_codes(label, len(bits), (1, p))
     assert codes.shape == (1, p) and codes.dtype.itemsize <= 2
 
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), p=st.integers(0, 400), n=st.sampled_from([1, 2, 300, 1 << 16, 1 << 20]),
+       runs=st.booleans(), dtype=st.sampled_from([np.uint8, np.uint16, np.int64]))
+def test_compact_finds_the_values_that_occur_and_ranks_them(seed, p, n, runs, dtype):
+    """Property: ``_compact`` (which reads only the first value of every run of equal values,
+    issue 13) gives np.unique's values and inverse, on run-like (code image) and noisy input."""
+    from clutt3r_core.mask_codes import _compact
+
+    n = min(n, np.iinfo(dtype).max + 1)
+    rng = np.random.default_rng(seed)
+    x = rng.integers(0, n, p)
+    if runs:  # long runs of few values, like a code image
+        x = np.repeat(rng.integers(0, n, max(p // 20, 1)), 20)[:p]
+    x = x.astype(dtype)
+    used, rank = _compact(x, n)
+    want, inv = np.unique(x, return_inverse=True)
+    np.testing.assert_array_equal(used, want)
+    np.testing.assert_array_equal(rank, inv.reshape(-1))
+    assert rank.dtype == (np.uint8 if len(used) <= 256 else np.uint16)
