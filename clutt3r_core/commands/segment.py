@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -59,8 +60,12 @@ def segment_command(
         console.print(f"mask candidates: {n} on {len(seg.masks.frames)} views in {seg.masks.seconds:.1f} s")
     # the folder load_scene read (a release sample's data/ inside SCENE), so the viewer finds the images
     # (save_run also writes generated candidates to OUT/instance_masks/ and their generator to run.json)
-    save_run(seg, out, scene_root=sc.root if sc.root is not None else scene)
-    write_png(Path(out) / "overview.png", overview_sheet(seg.points, seg.instance, sc))
+    # overview.png is drawn on a second thread while save_run writes (numpy, OpenCV and zlib
+    # release the GIL; neither reads what the other writes): issue 13, whole-command wall time
+    with ThreadPoolExecutor(1) as pool:
+        sheet = pool.submit(overview_sheet, seg.points, seg.instance, sc)
+        save_run(seg, out, scene_root=sc.root if sc.root is not None else scene)
+        write_png(Path(out) / "overview.png", sheet.result(), sub_filter=True)  # re-raises the drawing's error
     for w in seg.warnings:  # also in OUT/run.json; soft_wrap: one line each, however narrow the terminal
         console.print(f"[yellow]warning:[/] {escape(w.message)}", soft_wrap=True, highlight=False)
     t = seg.trace

@@ -355,8 +355,13 @@ def atomic_write_npz(path: str | Path, *, stored: Iterable[str] = (), **arrays: 
     atomic_write_bytes(path, npz_bytes(stored=stored, **arrays))
 
 
-def write_png(path: str | Path, img: np.ndarray) -> None:
-    """Write uint8 RGB (H, W, 3), uint8 (H, W), bool (H, W) as 0/255, or uint16 (H, W) as PNG."""
+def write_png(path: str | Path, img: np.ndarray, *, sub_filter: bool = False) -> None:
+    """Write uint8 RGB (H, W, 3), uint8 (H, W), bool (H, W) as 0/255, or uint16 (H, W) as PNG.
+
+    ``sub_filter``: every row Sub-filtered instead of libpng's per-row adaptive choice: the
+    same pixels in about half the encoding CPU for a picture (ours, issue 13: the segment
+    command's 1920x360 overview.png 79 -> 37 ms, the file 2 % smaller).
+    """
     img = np.asarray(img)
     if img.dtype == bool:
         img = img.astype(np.uint8) * 255
@@ -366,7 +371,10 @@ def write_png(path: str | Path, img: np.ndarray) -> None:
         img = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
     elif img.dtype not in (np.uint8, np.uint16):
         raise ValueError(f"single-channel PNG must be uint8 or uint16, got {img.dtype}")
-    ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    params = [cv2.IMWRITE_PNG_COMPRESSION, 1]
+    if sub_filter:
+        params += [cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_SUB]
+    ok, buf = cv2.imencode(".png", img, params)
     if not ok:
         raise SceneFileError(path, "PNG encoding failed")
     atomic_write_bytes(path, buf.tobytes())

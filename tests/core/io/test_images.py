@@ -151,3 +151,15 @@ def test_a_damaged_sub_png_reads_as_opencv_reads_it_or_is_refused(tmp_path_facto
             read_mask(p)
     else:
         np.testing.assert_array_equal(read_mask(p), (ref > 0) if ref.ndim == 2 else ref[:, :, :3].max(axis=2) > 0)
+
+
+@pytest.mark.parametrize("shape", [(30, 40, 3), (17, 9), (1, 1, 3)])
+def test_sub_filtered_png_holds_the_same_pixels(tmp_path, shape):
+    img = np.random.default_rng(0).integers(0, 256, shape, dtype=np.uint8)
+    images.write_png(tmp_path / "a.png", img)
+    images.write_png(tmp_path / "b.png", img, sub_filter=True)
+    a, b = cv2.imread(str(tmp_path / "a.png"), cv2.IMREAD_UNCHANGED), cv2.imread(str(tmp_path / "b.png"), cv2.IMREAD_UNCHANGED)
+    np.testing.assert_array_equal(a, b)
+    raw = (tmp_path / "b.png").read_bytes()
+    if len(shape) == 2:  # greyscale: every row's filter byte is Sub (1)
+        assert (_filters(raw, *shape) == 1).all()
