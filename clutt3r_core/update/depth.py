@@ -28,6 +28,11 @@ cheaper and sharper tests are available (measured reasons in docs/update.md):
    fit any pose that covers it). Score = fitness x consistency; near-ties (within
    ``tie_margin``) go to the smallest rotation (symmetric objects look the same in many
    poses; the least motion is the natural choice).
+4. **Unexplained regions** (``unexplained_regions``): the new depth pixels that nothing stored
+   explains (no unmoved instance, no background point, no accepted fit agrees with them) and
+   that stand above the support plane, grouped into connected regions (4-neighbours whose
+   depths differ by less than a link distance). A displaced object whose mask the detector
+   dropped or split is such a region: a registration target without a mask.
 """
 
 from __future__ import annotations
@@ -39,12 +44,13 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from clutt3r_core.graph_ops import connected_components
 from clutt3r_core.normals import estimate_normals
 from clutt3r_core.scene import Camera
 from clutt3r_core.update.project import splat
 
 __all__ = ["PlaceCheck", "place_check", "explained_pixels", "mask_points", "Registration", "register",
-           "start_rotations"]
+           "start_rotations", "support_plane", "unexplained_regions"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -130,6 +136,59 @@ def explained_pixels(points: np.ndarray, instance: np.ndarray, ids: np.ndarray, 
     if s.h and s.w:
         local = np.isfinite(s.zbuf) & (np.abs(s.crop(depth) - s.zbuf) <= tol)
         out[s.v0 : s.v0 + s.h, s.u0 : s.u0 + s.w] = local
+    return out
+
+
+def support_plane(background: np.ndarray, objects: np.ndarray, tol: float) -> np.ndarray | None:
+    """[nx, ny, nz, d] of the dominant plane of the ``background`` points (N, 3) by RANSAC
+    (``support.fit_plane_ransac``, inliers within ``tol`` / 2), oriented so that the median of
+    ``objects`` (M, 3) is on its positive side; None with fewer than 100 background points."""
+    from clutt3r_core.support import fit_plane_ransac
+
+    if len(background) < 100:
+        return None
+    fit = fit_plane_ransac(np.asarray(background, np.float64), tol / 2)
+    if fit is None:
+        return None
+    plane = np.asarray(fit[0], np.float64)
+    if len(objects) and np.median(np.asarray(objects, np.float64) @ plane[:3] + plane[3]) < 0:
+        plane = -plane
+    return plane
+
+
+def unexplained_regions(camera: Camera, depth: np.ndarray, explained: np.ndarray, plane: np.ndarray | None,
+                        min_height: float, link: float, min_pixels: int) -> list[np.ndarray]:
+    """(H, W) bool regions of valid, unexplained depth pixels (module docstring, 4), largest
+    first: pixels whose world point lies more than ``min_height`` (m) above ``plane`` (all
+    unexplained pixels without a plane), linked to their 4-neighbours when the depths differ
+    by less than ``link`` (m); regions under ``min_pixels`` pixels are dropped."""
+    valid = np.isfinite(depth) & (depth > 0) & ~explained
+    if plane is not None and valid.any():
+        vs, us = np.nonzero(valid)
+        h = camera.pixels_to_world(us, vs, depth[vs, us]) @ plane[:3] + plane[3]
+        valid[vs[h <= min_height], us[h <= min_height]] = False
+    n = int(np.count_nonzero(valid))
+    if n < max(min_pixels, 1):
+        return []
+    idx = np.full(depth.shape, -1, np.int64)
+    idx[valid] = np.arange(n)
+    d = np.where(valid, depth, 0.0)  # only pairs of valid pixels are linked
+    src, dst = [], []
+    for a, b in (((slice(None), slice(None, -1)), (slice(None), slice(1, None))),
+                 ((slice(None, -1), slice(None)), (slice(1, None), slice(None)))):
+        e = valid[a] & valid[b] & (np.abs(d[a] - d[b]) < link)
+        src.append(idx[a][e])
+        dst.append(idx[b][e])
+    lab = connected_components(n, np.concatenate(src), np.concatenate(dst))
+    sizes = np.bincount(lab)
+    vs, us = np.nonzero(valid)  # row-major, the order of idx
+    out = []
+    for c in np.argsort(-sizes, kind="stable"):
+        if sizes[c] < min_pixels:
+            break
+        m = np.zeros(depth.shape, bool)
+        m[vs[lab == c], us[lab == c]] = True
+        out.append(m)
     return out
 
 

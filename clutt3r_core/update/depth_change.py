@@ -36,7 +36,7 @@ from scipy.spatial import cKDTree
 from clutt3r_core.scene import View
 from clutt3r_core.update.associate import Association, project_depth
 from clutt3r_core.update.depth import (PlaceCheck, Registration, explained_pixels, mask_points, place_check,
-                                       register, start_rotations)
+                                       register, start_rotations, support_plane, unexplained_regions)
 from clutt3r_core.update.project import mask_iou, silhouette
 from clutt3r_core.update.types import LOSS_NAMES, PoseResult, PoseTrace, UpdateConfig
 
@@ -52,11 +52,18 @@ def fit_iou(points: np.ndarray, T: np.ndarray, camera, voxel: float, occluder_de
 
 @dataclass(frozen=True, eq=False)
 class Fit:
-    """An accepted registration of a moved instance to a mask candidate (index into the view's masks)."""
+    """An accepted registration of a moved instance to a mask candidate (index into the view's
+    masks), or, with ``mask_index`` -1, to an unexplained depth region (``region``, (H, W) bool;
+    ``ChangeConfig.search_unexplained``)."""
 
     mask_index: int
     registration: Registration
     iou: float
+    region: np.ndarray | None = None
+
+    def target(self, masks) -> np.ndarray:
+        """(H, W) bool: the mask or region the instance was registered to."""
+        return self.region if self.mask_index < 0 else masks.masks[self.mask_index]
 
 
 @dataclass(frozen=True, eq=False)
@@ -181,7 +188,84 @@ def depth_changes(state, view: View, config: UpdateConfig, assoc: Association, s
         used_m.add(mi)
         taken.append(q)
         fits[k] = Fit(mi, reg, iou)
+    left = sorted(k for k in moved if k not in fits)
+    if cc.search_unexplained and left:
+        n_reg += _search_regions(state, view, config, left, moved, fits, taken, occ, starts, overlap)
     return DepthChanges(pc, frozenset(in_place), frozenset(moved), fits, explained, n_reg)
+
+
+def _search_regions(state, view: View, config: UpdateConfig, left: list[int], moved: set, fits: dict,
+                    taken: list[np.ndarray], occ, starts: np.ndarray, overlap) -> int:
+    """``ChangeConfig.search_unexplained``: register the moved instances that no mask fitted
+    to the regions of new depth that nothing stored explains (``depth.unexplained_regions``:
+    not an unmoved instance, not the background, not an accepted fit), with the same
+    acceptance tests (``accept_iou_region`` instead of ``accept_iou``) and one object per
+    surface; accepted fits go into ``fits`` with ``mask_index`` -1 and their region as
+    ``region``. Only the ``region_max_targets`` largest
+    regions are searched (each registration costs ~0.1 s CPU). Returns the registrations run."""
+    cc = config.change
+    cam, depth, voxel = view.camera, view.depth, state.voxel_size
+    still = np.array([k for k in state.instance_ids if int(k) not in moved] + [-1], np.int32)
+    expl = explained_pixels(state.points, state.instance, still, cam, depth, voxel, cc.in_place_tol)
+    for k, f in fits.items():
+        T = f.registration.T_world
+        q = state.points[state.instance == k].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+        expl |= explained_pixels(q, np.zeros(len(q), np.int32), np.zeros(1, np.int32), cam, depth, voxel,
+                                 cc.in_place_tol)
+    plane = support_plane(state.points[state.instance < 0], state.points[state.instance >= 0], cc.in_place_tol)
+    regions = unexplained_regions(cam, depth, expl, plane, cc.region_min_height, cc.region_link,
+                                  cc.region_min_pixels)
+    targets = []
+    for m in regions[: cc.region_max_targets]:
+        pts = mask_points(cam, depth, m, erode=1, max_points=250)
+        if len(pts) >= 30:
+            targets.append((m, pts, float(np.linalg.norm(np.ptp(pts, axis=0)))))
+    # a mask split in two by an occluder leaves two regions of one object: their union is a
+    # target too, when the two lie within region_pair_gap of each other in 3D
+    singles = list(targets)
+    trees = [cKDTree(t[1]) for t in singles]
+    for a in range(len(singles)):
+        for b in range(a + 1, len(singles)):
+            (ma, pa, _), (mb, pb, _) = singles[a], singles[b]
+            if trees[a].query(pb, distance_upper_bound=cc.region_pair_gap)[0].min() > cc.region_pair_gap:
+                continue
+            pts = np.concatenate([pa, pb])
+            targets.append((ma | mb, pts, float(np.linalg.norm(np.ptp(pts, axis=0)))))
+    found, n_reg = [], 0
+    for k in left:
+        sel = state.instance == k
+        model, colors = state.points[sel].astype(np.float64), state.colors[sel]
+        diam = float(np.linalg.norm(np.ptp(model, axis=0)))
+        for ri, (m, pts, ext) in enumerate(targets):
+            if ext > cc.max_extent_ratio * diam + 0.01:
+                continue
+            # IoU >= accept_iou needs the region within 1 / accept_iou of the largest area the
+            # object can cover: a disc of its diameter (isodiametric) at its nearest possible depth
+            z = max(float(np.min(cam.project(pts)[1])) - diam, 0.05)
+            if cc.accept_iou * np.count_nonzero(m) > np.pi / 4 * (cam.fx * diam / z) * (cam.fy * diam / z):
+                continue
+            reg = register(model, pts, cam, depth, starts=starts, tol=cc.in_place_tol, colors=colors, rgb=view.rgb,
+                           photo_weight=config.pose.registration_photo_weight,
+                           tie_margin=config.pose.registration_tie_margin)
+            n_reg += 1
+            if reg is None or reg.fitness < cc.accept_fitness or reg.consistency < cc.accept_consistency:
+                continue
+            iou = fit_iou(model, reg.T_world, cam, voxel, occ, m)
+            if iou >= cc.accept_iou_region:
+                found.append((reg.score * iou, k, ri, reg, iou))
+    used_k, used_r = set(), set()
+    for score, k, ri, reg, iou in sorted(found, key=lambda f: (-f[0], f[1], f[2])):
+        if k in used_k or ri in used_r:
+            continue
+        T = reg.T_world
+        q = state.points[state.instance == k].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+        if overlap(q, taken) > cc.max_fit_overlap:
+            continue
+        used_k.add(k)
+        used_r.add(ri)
+        taken.append(q)
+        fits[k] = Fit(-1, reg, iou, targets[ri][0])
+    return n_reg
 
 
 def registration_result(reg: Registration, points: np.ndarray, camera, voxel: float,

@@ -287,6 +287,49 @@ class ChangeConfig:
     an in-place object's mask overlap its points at 0.28 / 0.79. Moved instances are not
     tested against in-place points: intermediate_300's right fit (a small object pushed into a
     cluster) overlaps them at 0.54 within 1 cm."""
+    unfitted_presence: bool = True
+    """Ours, with depth: an instance the in-place test calls moved (agree fraction under
+    ``in_place_fraction``) for which no mask or region fits is removed only when its
+    projection's pixels do not still show it (associate.py rule 5's per-pixel depth presence
+    test: ``AssociationConfig.presence_fraction`` of them within ``presence_depth_tol``);
+    present = static. Measured on the moved-without-fit instances of 300/500/700/900 (45): the
+    removed objects' are all absent by rule 5 (place fractions 0.00-0.31); hard_900's static
+    instance (26 agree / 14 seen through / 47 nearer, 0.65) is present (it was reported
+    removed); hard_503's displaced object (0.48, no fit) is present too (static instead of
+    removed: both wrong, static keeps the object)."""
+    search_unexplained: bool = True
+    """Ours, with depth: moved instances that no mask candidate fits are registered to the
+    regions of new depth that nothing stored explains (``depth.unexplained_regions``), with the
+    ``accept_*`` tests (IoU with the region) and ``max_fit_overlap``. Measured on 300/500/700/900:
+    a displaced object whose mask the detector dropped or split was reported removed
+    (easy_303, easy_501, easy_701, hard_900 ...) while its new depth pixels were all
+    unexplained, most of the time one clean region (docs/update.md)."""
+    region_min_height: float = 0.01
+    """Ours, metres: unexplained pixels within this of the support plane (fitted to the
+    background points) are table, not an object (the table under a removed or moved object was
+    never seen, so no stored point explains it)."""
+    accept_iou_region: float = 0.55
+    """Ours: ``accept_iou`` for a fit to an unexplained region (no mask, no association says
+    which object is there). Measured on 300/500/700/900 (first run of the search, with 0.4):
+    the six right region fits reach IoU 0.64-0.82 (fitness 0.94-1.00, consistency 0.90-0.98);
+    the one wrong one, hard_502's grasped object fitted to another object's unexplained surface
+    (reported displaced instead of removed), 0.44 (fitness 0.92, consistency 0.74)."""
+    region_link: float = 0.01
+    """Ours, metres: neighbouring unexplained pixels whose depths differ by less than this are
+    one region (two voxels: a surface seen at 0.5-1 m steps by a few mm per pixel; an object in
+    front of another steps by centimetres)."""
+    region_pair_gap: float = 0.02
+    """Ours, metres: two unexplained regions whose depth points come within this of each other
+    are also tried as one target (a displaced object split in two by an occluder in front:
+    hard_900's, whose mask the detector split in halves of IoU 0.46 / 0.42)."""
+    region_max_targets: int = 4
+    """Ours: only this many of the largest unexplained regions are searched (and pairs of them):
+    each registration costs ~0.1 s CPU and hard scenes leave 8-14 regions (partly
+    reconstructed objects, new surfaces); on 300/500/700/900 the region of every displaced
+    object that only a region fitted was the first or second largest."""
+    region_min_pixels: int = 100
+    """Ours, pixels: smaller unexplained regions are not searched (rims of splats and masks;
+    the smallest displaced object's region on 300/500/700/900 was several hundred pixels)."""
     use_photo: bool = True
     """Ours, views without depth (or ``use_depth`` False; ``update/photo_change.py``): every
     stored point the new camera sees predicts its pixel's colour; an instance whose informative
@@ -375,8 +418,8 @@ class ChangeConfig:
         # A mistyped fraction (70 for 0.7) or a negative size would silently flag or keep
         # everything; fail at construction naming the field instead.
         fractions = ("tau_iou", "min_fit_iou", "in_place_fraction", "accept_fitness", "accept_consistency",
-                     "accept_iou", "accept_iou_hidden", "min_rest_fraction", "max_fit_overlap",
-                     "photo_context_share", "photo_min_informative", "photo_in_place_fraction",
+                     "accept_iou", "accept_iou_hidden", "accept_iou_region", "min_rest_fraction",
+                     "max_fit_overlap", "photo_context_share", "photo_min_informative", "photo_in_place_fraction",
                      "hidden_by_moved_fraction", "photo_gone_fraction")
         for name in fractions:
             v = getattr(self, name)
@@ -384,7 +427,8 @@ class ChangeConfig:
                 raise SceneError(f"ChangeConfig.{name} must be in [0, 1], got {v}")
         for name in ("min_translation", "min_rotation_deg", "in_place_tol", "min_place_points", "photo_tol_min",
                      "photo_tol_sigma", "photo_search_px", "photo_context_radius", "photo_min_points",
-                     "photo_fragment_points"):
+                     "photo_fragment_points", "region_min_height", "region_link", "region_min_pixels",
+                     "region_pair_gap", "region_max_targets"):
             v = getattr(self, name)
             if v < 0:
                 raise SceneError(f"ChangeConfig.{name} must be >= 0, got {v}")

@@ -218,12 +218,21 @@ def update_scene(
         mid = int(masks.ids[mi]) if mi >= 0 else -1
         if dc is not None and (k in dc.moved or k in dc.fits):
             fit = dc.fits.get(k)
-            if fit is None:  # its old place is seen empty and no mask fits it: grasped
+            if fit is None:  # its old place is seen empty and no mask or region fits it: grasped ...
                 new_mask.pop(k, None)
+                if cc.unfitted_presence and unmatched_status(
+                        view, proj_all, i, config.association)[0] == "static":
+                    # ... unless its projection's pixels still show it (rule 5's depth presence
+                    # test; ChangeConfig.unfitted_presence): the per-point place test was ambiguous
+                    records.append(InstanceUpdate(k, "static", iou.get(k), iou.get(k), None, mid,
+                                                  "present-depth"))
+                    continue
                 records.append(InstanceUpdate(k, "removed", None, None, None, -1, assoc.match[i] or "depth"))
                 continue
             sel = state.instance == k
-            m_k = masks.masks[fit.mask_index]
+            m_k = fit.target(masks)
+            fit_mid = int(masks.ids[fit.mask_index]) if fit.mask_index >= 0 else -1
+            fit_how = "depth-registration" if fit.mask_index >= 0 else "depth-region"
             ib = mask_iou(proj.label == k, m_k)  # the paper's IoU before, for the record
             T, res = fit.registration.T_world, registration_result(fit.registration, state.points[sel], cam, voxel,
                                                                    occ_depth, m_k, ib)
@@ -235,13 +244,11 @@ def update_scene(
             if k not in dc.moved and config.change.verify and not _moved(
                     replace(res, T_world=T), state.points[sel].astype(np.float64).mean(axis=0), -1.0, config):
                 # hidden at its old place, found (nearly) there in the new view: it did not move
-                records.append(InstanceUpdate(k, "static", ib, ib, None, int(masks.ids[fit.mask_index]),
-                                              "depth-registration", pose=res))
+                records.append(InstanceUpdate(k, "static", ib, ib, None, fit_mid, fit_how, pose=res))
                 continue
             ia = fit_iou(state.points[sel], T, cam, voxel, occ_depth, m_k)
             new_mask[k] = m_k
-            records.append(InstanceUpdate(k, "displaced", ib, ia, T, int(masks.ids[fit.mask_index]),
-                                          "depth-registration", pose=res))
+            records.append(InstanceUpdate(k, "displaced", ib, ia, T, fit_mid, fit_how, pose=res))
             continue
         if dc is not None and k in dc.in_place:
             v = iou.get(k)
