@@ -30,7 +30,10 @@ This module estimates the surface across views first, KinectFusion-style (Newcom
 5. the moved points are then voxel-averaged as before and a pixel maps to the voxel its moved
    point lands in. A voxel is kept when ``min_points`` moved points land in it, or one point
    moved from a voxel that held ``min_points`` raw points (a well observed surface that only
-   clips the voxel's corner puts few samples in it).
+   clips the voxel's corner puts few samples in it), or when it holds a single point that could
+   not be moved and borders kept voxels (``PointCloudConfig.surface_rim_neighbours``): object rims,
+   where depth edges and grazing views leave sparse samples and the field no usable gradient,
+   were the largest share of the GT object cells without a fused point.
 
 Whether to run it at all is decided from the data (``PointCloudConfig.surface = "auto"``, ours'
 default): ``depth_agreement.depth_disagreement`` measures how much the views disagree about the surface, and the
@@ -403,7 +406,8 @@ def _snap_and_filter(views, P, C, pix_list, offsets, strides, cfg, params):
     """The raw points ``P`` (P, 3) float32 moved onto the surface, with their colours ``C`` (P, 3),
     pixels (``pix_list[v]``: flat pixel indices of view v) and ``offsets`` (V + 1,), less the points
     of voxels that fail the occupancy rule: a voxel of the moved points is kept when it holds
-    ``cfg.surface_min_points`` of them or one trusted point (``SnappedPoints.trusted``). Every kept
+    ``cfg.surface_min_points`` of them or one trusted point (``SnappedPoints.trusted``), or a single
+    point that could not be moved and ``cfg.surface_rim_neighbours`` kept neighbours. Every kept
     point's voxel is then kept by the fusion (``min_points`` 1 there). Last: the move noise."""
     from clutt3r_core.pointcloud import _group_keys, _voxel_keys
 
@@ -419,14 +423,43 @@ def _snap_and_filter(views, P, C, pix_list, offsets, strides, cfg, params):
     del zp
     keys, _, ext = _voxel_keys(sn.points, cfg.voxel_size, pad=1)
     inverse, counts = _group_keys(keys, ext)
-    del keys
     trusted = np.bincount(inverse[sn.trusted], minlength=len(counts)) > 0
-    keep = ((counts >= cfg.surface_min_points) | trusted)[inverse]
+    kept = (counts >= cfg.surface_min_points) | trusted
+    if cfg.surface_rim_neighbours > 0:
+        # a lone point the estimate could not move (a rim: depth edge, grazing view) next to kept voxels
+        lone = np.flatnonzero(~kept & (counts == 1))
+        lone = lone[np.bincount(inverse[sn.moved], minlength=len(counts))[lone] == 0]
+        kept[lone[_kept_neighbours(keys, ext, inverse, kept, lone) >= cfg.surface_rim_neighbours]] = True
+    del keys
+    keep = kept[inverse]
     if keep.all():
         return sn.points, C, pix_list, offsets, sn.move_noise
     pix_list = [pix[keep[offsets[v] : offsets[v + 1]]] for v, pix in enumerate(pix_list)]
     offsets = np.concatenate([[0], np.cumsum([len(p) for p in pix_list])])
     return sn.points[keep], C[keep], pix_list, offsets, sn.move_noise
+
+
+def _kept_neighbours(keys, ext, inverse, kept, cand):
+    """(len(cand),) int: how many of the 26 neighbours of each voxel ``cand`` are ``kept``; ``keys``,
+    ``ext``: the points' voxel keys from ``_voxel_keys`` (pad >= 1: every neighbour key is valid),
+    ``inverse``: each point's voxel from ``_group_keys`` (voxels ascending by packed key)."""
+    if len(cand) == 0 or not kept.any():
+        return np.zeros(len(cand), np.int64)
+    one = np.empty(len(kept), np.intp)
+    one[inverse] = np.arange(len(inverse))
+    ex, ey = int(ext[0]), int(ext[1])
+    lin = keys[0][one].astype(np.int64) + ex * (keys[1][one].astype(np.int64) + ey * keys[2][one].astype(np.int64))
+    klin = lin[kept]  # ascending
+    q0 = lin[cand]
+    n = np.zeros(len(cand), np.int64)
+    for dx in (-1, 0, 1):
+        for dy in (-1, 0, 1):
+            for dz in (-1, 0, 1):
+                if dx or dy or dz:
+                    q = q0 + (dx + ex * (dy + ey * dz))
+                    j = np.minimum(np.searchsorted(klin, q), len(klin) - 1)
+                    n += klin[j] == q
+    return n
 
 
 def surface_points(views, P, C, pix_list, offsets, strides, cfg):

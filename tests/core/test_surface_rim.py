@@ -1,0 +1,73 @@
+"""Rim fill of the surface estimate (``PointCloudConfig.surface_rim_neighbours``, issue 13)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from clutt3r_core.config import ADDITIONS, PRESETS, SegmentConfig
+from clutt3r_core.errors import SceneError
+from clutt3r_core.pointcloud import PointCloudConfig, _group_keys, _voxel_keys, fuse_views
+from clutt3r_core.surface import _kept_neighbours
+from tests.core._geometry_scenes import make_views
+
+
+def _noisy(views, sigma: float, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    return [dataclasses.replace(v, depth=v.depth + rng.normal(0.0, sigma, v.depth.shape).astype(np.float32))
+            for v in views]
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(1, 60), st.floats(0.0, 1.0))
+def test_kept_neighbours_counts_the_26_neighbourhood(seed, n, frac):
+    """Against a brute-force count over the distinct voxels of random points."""
+    rng = np.random.default_rng(seed)
+    P = (rng.integers(0, 5, (n, 3)) * 0.01 + 0.005 + rng.uniform(-0.004, 0.004, (n, 3))).astype(np.float32)
+    keys, _, ext = _voxel_keys(P, 0.01, pad=1)
+    inverse, counts = _group_keys(keys, ext)
+    u = len(counts)
+    kept = rng.random(u) < frac
+    cand = np.arange(u)
+    got = _kept_neighbours(keys, ext, inverse, kept, cand)
+    vk = np.zeros((u, 3), np.int64)
+    vk[inverse] = np.stack(keys, axis=1)
+    want = [int(sum(kept[j] for j in range(u) if j != i and np.abs(vk[j] - vk[i]).max() <= 1)) for i in range(u)]
+    assert got.tolist() == want
+
+
+def test_rim_fill_only_adds_lone_voxels_next_to_the_surface():
+    """With noisy depth the fill adds voxels (the box's rims), each holding one raw point and
+    bordering a voxel of the cloud without the fill; every voxel of that cloud is kept unchanged."""
+    views = _noisy(make_views(3, 320, 240, 400.0), 0.003)
+    base = fuse_views(views, PointCloudConfig(surface="tsdf", surface_rim_neighbours=0))
+    fill = fuse_views(views, PointCloudConfig(surface="tsdf", surface_rim_neighbours=1))
+    vs = base.voxel_size
+    kb = np.floor(base.points / vs).astype(np.int64)
+    kf = np.floor(fill.points / vs).astype(np.int64)
+    index = {tuple(k): i for i, k in enumerate(kf)}
+    rows = np.array([index[tuple(k)] for k in kb])  # every base voxel is in the filled cloud ...
+    np.testing.assert_allclose(fill.points[rows], base.points, atol=1e-6)  # ... with the same mean
+    np.testing.assert_array_equal(fill.counts[rows], base.counts)
+    added = np.setdiff1d(np.arange(fill.num), rows)
+    assert len(added) > 0
+    assert (fill.counts[added] == 1).all()
+    bset = {tuple(k) for k in kb}
+    offs = [(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1) if (a, b, c) != (0, 0, 0)]
+    assert all(any(tuple(kf[i] + o) in bset for o in offs) for i in added)
+    # a stricter neighbour count adds a subset
+    strict = fuse_views(views, PointCloudConfig(surface="tsdf", surface_rim_neighbours=6))
+    assert base.num <= strict.num <= fill.num
+
+
+def test_rim_fill_config_and_ablation_switch():
+    with pytest.raises(SceneError, match="surface_rim_neighbours"):
+        PointCloudConfig(surface_rim_neighbours=-1)
+    add = {a.key: a for a in ADDITIONS}["surface-rim-fill"]
+    assert add.fields == (("pointcloud.surface_rim_neighbours", 1, 0),)
+    assert SegmentConfig().pointcloud.surface_rim_neighbours == 1
+    assert PRESETS["paper"].pointcloud.surface_rim_neighbours == 0
