@@ -47,5 +47,6 @@ class SessionState:
     query_scores: np.ndarray | None = None  # (I,) float32 text score per instance of the last query
     grasp: int = -1
     update: int = -1
+    update_after: bool = True  # the Updates tab shows the scene after (else before) its update
     playing: bool = False
     edit_instance: int = -1

@@ -99,6 +99,10 @@ class ScenePanel(Panel):
         """Colour-only update (viser sends colours, not points), plus positions when an event source moves them."""
         src = s.replay_source() if s.state.color_mode == "replay" else None
         pts = src.points(s.state.event, s.lod_idx) if src is not None else None
+        if s.state.color_mode == "update":  # the Updates tab's scene after (or before) its update
+            from clutt3r_viewer.panels.updates import update_positions
+
+            pts = update_positions(s)
         if pts is not None:
             self.cloud.points = (pts - s.app.data.centre).astype(np.float32)
             self.moved = True
@@ -136,7 +140,7 @@ class ScenePanel(Panel):
                 self.color.value = s.state.color_mode
         if change & (Change.VIEW | Change.NODE | Change.LABELS | Change.COLOUR):
             self.recolor(s)
-        elif change & Change.LOD and s.state.color_mode == "replay":
+        elif change & Change.LOD and s.state.color_mode in ("replay", "update"):
             self.recolor(s)
 
 

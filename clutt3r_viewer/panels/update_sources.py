@@ -12,7 +12,12 @@ Importing this module registers:
   optimisation of every displaced instance, update after update. Step n moves each displaced
   instance's points to its pose at iteration n (instances of one update move together; a
   shorter optimisation holds its last pose), composed with the motions of earlier updates;
-  colour = the iteration's total loss.
+  colour = the iteration's total loss;
+- the colour layer "update" (``register_color_layer``, replacing ``layers.UpdateLayer`` in
+  place): the Updates tab's scene after (or just before) the selected update, from
+  ``updated_scene``: instances coloured by id, the points of removed instances pale (ghosts,
+  left where they were last seen). The same scene's positions move the cloud
+  (``panels.updates.update_positions``).
 """
 
 from __future__ import annotations
@@ -26,10 +31,18 @@ from clutt3r_core.errors import Clutt3rError
 from clutt3r_core.scene import Scene
 from clutt3r_core.update import InstanceUpdate, PoseResult, UpdateFrame, UpdateResult
 from clutt3r_core.update.state import load_pose_traces, state_dirs
+from dataclasses import dataclass
+
+from clutt3r_viewer.data import label_colors
 from clutt3r_viewer.events import PoseIterations, register_event_source
+from clutt3r_viewer.layers import register_color_layer
 from clutt3r_viewer.loading import register_update_loader
 
-__all__ = ["load_update_frames", "update_pose_events"]
+__all__ = ["load_update_frames", "update_pose_events", "update_motions", "updated_scene", "UpdateSceneLayer",
+           "GHOST_WHITE"]
+
+GHOST_WHITE = 0.75
+"""Removed instances' points are drawn as their instance colour blended this much with white."""
 
 
 def _result(folder: Path, doc: dict, hw: tuple[int, int]) -> UpdateResult:
@@ -120,8 +133,70 @@ def update_pose_events(data) -> PoseIterations | None:
                           context_rgb=np.asarray(seg.colors, np.uint8))
 
 
+def update_motions(updates, n_instances: int) -> np.ndarray:
+    """(U + 1, I, 4, 4) world motion of every instance id after 0, 1, .., U updates of the
+    chain ``updates`` (``UpdateFrame``s, chain order; index 0 = the initial segmentation, all
+    identity). A displaced instance's motion composes as ``T_world(u) @ motion(u - 1)`` (issue
+    10: ``pose_new = T_world @ pose_old``); the others keep theirs."""
+    ids = [r.instance for u in updates if u.result is not None for r in u.result.instances]
+    n = max(int(n_instances), 1 + max(ids, default=-1))
+    out = np.tile(np.eye(4), (len(updates) + 1, n, 1, 1))
+    for u, frame in enumerate(updates):
+        out[u + 1] = out[u]
+        for r in () if frame.result is None else frame.result.instances:
+            if r.status == "displaced" and r.T_world is not None:
+                out[u + 1, r.instance] = np.asarray(r.T_world, np.float64) @ out[u, r.instance]
+    return out
+
+
+def updated_scene(data, u: int, idx: np.ndarray, after: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The run's points ``idx`` in the scene after update ``u`` of ``data.updates`` (``after=False``:
+    just before it, i.e. after update u - 1; u = -1: the initial segmentation).
+
+    Returns (positions (M, 3) float64 world metres: displaced instances moved by their composed
+    motions, ``update_motions``; instance (M,) int32 at that time, -1 = none or removed; gone (M,)
+    bool: points of instances removed by then, which stay where they were last seen).
+    """
+    seg = data.seg
+    idx = np.asarray(idx, np.int64)
+    inst0 = np.asarray(seg.instance)[idx]
+    pts = np.asarray(seg.points, np.float64)[idx].copy()
+    n_done = u + 1 if after else u  # updates applied to the scene shown
+    if n_done <= 0 or not data.updates:
+        return pts, inst0.astype(np.int32), np.zeros(len(idx), bool)
+    M = update_motions(data.updates[:n_done], int(inst0.max(initial=-1)) + 1)[n_done]
+    for k in np.flatnonzero(np.any(M != np.eye(4), axis=(1, 2))):
+        sel = inst0 == k
+        pts[sel] = pts[sel] @ M[k, :3, :3].T + M[k, :3, 3]
+    pi = data.updates[n_done - 1].point_instance
+    inst = inst0.astype(np.int32) if pi is None else np.asarray(pi, np.int32)[idx]
+    return pts, inst, (inst0 >= 0) & (inst < 0)
+
+
+@dataclass(frozen=True)
+class UpdateSceneLayer:
+    """Colour layer "update": instances after (or before, ``SessionState.update_after``) the
+    selected update (``SessionState.update``), removed ones pale (``GHOST_WHITE``)."""
+
+    name: str = "update"
+
+    def available(self, inp, state) -> bool:
+        return any(u.point_instance is not None for u in inp.data.updates)
+
+    def colors(self, inp, state) -> np.ndarray:
+        if not 0 <= state.update < len(inp.data.updates):
+            return label_colors(inp.instance[inp.idx])  # -1 = the initial segmentation
+        _, inst, gone = updated_scene(inp.data, state.update, inp.idx, state.update_after)
+        col = label_colors(inst)
+        if gone.any():
+            own = label_colors(np.asarray(inp.data.seg.instance)[inp.idx][gone]).astype(np.float32)
+            col[gone] = np.round((1 - GHOST_WHITE) * own + GHOST_WHITE * 255).astype(np.uint8)
+        return col
+
+
 register_update_loader(load_update_frames)
 register_event_source(update_pose_events)
+register_color_layer(UpdateSceneLayer())
 
 
 def export_updates_rerun(rec, data, max_points: int = 50_000) -> int:

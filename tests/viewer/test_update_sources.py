@@ -82,3 +82,80 @@ def test_update_curves_hold_the_last_value(tiny_seg):
     assert ids == (1,) and x.shape == (7,) and loss.shape == iou.shape == (1, 7)
     np.testing.assert_allclose(iou[0], np.linspace(0.1, 0.9, 7))
     assert update_curves(UpdateFrame(frame=8))[3] == ()
+
+
+def _chain(tiny_run_dir, tiny_seg, tmp_path):
+    """Run copy with two saved updates: 1 moves instance 0 by 5 cm and removes 2, 2 moves 0 by 2 cm
+    more and turns instance 1 by 90 deg about its centroid (z)."""
+    from clutt3r_viewer.loading import load_viewer_data
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run_dir, run)
+    s0 = state_from_segmentation(tiny_seg, run=run)
+    r1 = _fake_update(s0, 8, k=0, shift=0.05, removed=2, n_iter=6)
+    s1 = apply_update(s0, r1)
+    save_state(s1, run / "updates" / "01_frame_000008", r1)
+    r2 = _fake_update(s1, 9, k=0, shift=0.02, removed=None, n_iter=4)
+    c = tiny_seg.points[tiny_seg.instance == 1].mean(axis=0)
+    T = np.eye(4)
+    T[:3, :3] = [[0, -1, 0], [1, 0, 0], [0, 0, 1]]
+    T[:3, 3] = c - T[:3, :3] @ c
+    recs = tuple(r if r.instance != 1 else InstanceUpdate(1, "displaced", 0.2, 0.8, T) for r in r2.instances)
+    r2 = UpdateResult(r2.frame, recs, r2.new_masks, r2.change_masks, r2.projected, r2.time_s)
+    s2 = apply_update(s1, r2)
+    save_state(s2, run / "updates" / "02_frame_000009", r2)
+    return load_viewer_data(run, images=False), s1, s2
+
+
+def test_updated_scene_moves_displaced_instances_along_the_chain(tiny_run_dir, tiny_seg, tmp_path):
+    """The Updates tab's scene: after update u = the saved state u's points (poses composed along
+    the chain), before update u = after update u - 1; removed instances are 'gone' from then on."""
+    import clutt3r_viewer.panels.update_sources  # noqa: F401
+    from clutt3r_viewer.panels.update_sources import update_motions, updated_scene
+
+    d, s1, s2 = _chain(tiny_run_dir, tiny_seg, tmp_path)
+    idx = np.arange(len(tiny_seg.points))
+    inst0 = tiny_seg.instance
+    p_init, lab, gone = updated_scene(d, -1, idx)
+    np.testing.assert_array_equal(p_init, tiny_seg.points)
+    assert not gone.any() and np.array_equal(lab, inst0)
+    for u, st in ((0, s1), (1, s2)):
+        pts, lab, gone = updated_scene(d, u, idx, after=True)
+        for k in (0, 1):  # every kept instance's points are the saved state's (float32 there)
+            np.testing.assert_allclose(pts[inst0 == k], st.points[st.instance == k], atol=1e-5)
+        assert np.all(gone == (inst0 == 2)) and np.all(lab[inst0 == 2] == -1)
+    # before update 1 = after update 0: instance 0 moved 5 cm, instance 1 not yet turned
+    before, _, _ = updated_scene(d, 1, idx, after=False)
+    after0, _, _ = updated_scene(d, 0, idx, after=True)
+    np.testing.assert_array_equal(before, after0)
+    np.testing.assert_allclose(before[inst0 == 0, 0] - tiny_seg.points[inst0 == 0, 0], 0.05, atol=1e-9)
+    np.testing.assert_array_equal(before[inst0 == 1], tiny_seg.points[inst0 == 1])
+    after1, _, _ = updated_scene(d, 1, idx, after=True)
+    np.testing.assert_allclose(after1[inst0 == 0, 0] - tiny_seg.points[inst0 == 0, 0], 0.07, atol=1e-9)
+    assert np.abs(after1[inst0 == 1] - tiny_seg.points[inst0 == 1]).max() > 0.001  # turned
+    M = update_motions(d.updates, tiny_seg.num_instances)
+    assert M.shape == (3, tiny_seg.num_instances, 4, 4) and np.allclose(M[0], np.eye(4))
+    np.testing.assert_allclose(M[2, 0, 0, 3], 0.07)
+
+
+def test_update_layer_ghosts_removed_instances(tiny_run_dir, tiny_seg, tmp_path):
+    import clutt3r_viewer.panels.update_sources  # noqa: F401  (registers the layer)
+    from clutt3r_viewer.data import label_colors
+    from clutt3r_viewer.layers import LayerInput, layer_named
+    from clutt3r_viewer.panels.update_sources import GHOST_WHITE, UpdateSceneLayer
+    from clutt3r_viewer.state import SessionState
+
+    d, _, _ = _chain(tiny_run_dir, tiny_seg, tmp_path)
+    layer = layer_named("update")
+    assert isinstance(layer, UpdateSceneLayer)
+    idx = np.arange(len(tiny_seg.points))
+    inp = LayerInput(d, idx, tiny_seg.instance, np.ones(tiny_seg.num_instances, np.float32))
+    st = SessionState(update=0, update_after=True)
+    col = layer.colors(inp, st)
+    own = label_colors(tiny_seg.instance)
+    gone = tiny_seg.instance == 2
+    ghost = np.round((1 - GHOST_WHITE) * own[gone].astype(np.float32) + GHOST_WHITE * 255).astype(np.uint8)
+    np.testing.assert_array_equal(col[gone], ghost)
+    np.testing.assert_array_equal(col[~gone], own[~gone])
+    st.update_after = False  # before update 0: the initial segmentation's colours
+    np.testing.assert_array_equal(layer.colors(inp, st), own)
