@@ -68,3 +68,42 @@ def test_replay_steps_the_pose_iterations(browser, update_app, artifacts):  # no
     time.sleep(1.0)
     page.screenshot(path=str(artifacts / "viewer_update_curves.png"))
     page.close()
+
+
+def test_updates_tab_moves_the_points_to_the_updated_poses(browser, update_app, artifacts):  # noqa: F811
+    """Choosing update 0 in the Updates tab moves the displaced instance's points (15 cm) on the
+    canvas; unchecking "After the update" puts them back where they were before it."""
+    from clutt3r_viewer.panels.scene import ScenePanel
+
+    page, sess = _open(browser, update_app)
+    d = update_app.data
+    _tab(page, "Updates")
+    initial = _canvas_shot(page)
+    slider = page.get_by_role("slider").locator("visible=true").first
+    slider.focus()
+    page.keyboard.press("End")
+    _wait(lambda: sess.state.update == 0 and sess.state.color_mode == "update", what="update 0 shown")
+    cloud = sess.panel(ScenePanel).cloud
+    moved = d.seg.instance[sess.lod_idx] == 0
+    run_pts = (d.seg.points[sess.lod_idx] - d.centre).astype(np.float32)
+    _wait(lambda: np.allclose(np.asarray(cloud.points)[moved, 0] - run_pts[moved, 0], 0.15, atol=2e-3),
+          what="the displaced points at their updated pose (server side)")
+    assert np.allclose(np.asarray(cloud.points)[~moved], run_pts[~moved], atol=2e-3)  # the rest stay
+    time.sleep(1.5)
+    after = _canvas_shot(page)
+    page.screenshot(path=str(artifacts / "viewer_update_after.png"))
+    colours_after = np.asarray(cloud.colors).copy()
+
+    page.get_by_text("After the update").click()
+    _wait(lambda: not sess.state.update_after, what="before the update")
+    _wait(lambda: np.allclose(np.asarray(cloud.points), run_pts, atol=2e-3), what="points back before the update")
+    time.sleep(1.5)
+    before = _canvas_shot(page)
+    page.screenshot(path=str(artifacts / "viewer_update_before.png"))
+    # nothing was removed: the colours are the same, so what differs on the canvas is where the points are
+    assert np.array_equal(np.asarray(cloud.colors), colours_after)
+    changed = np.abs(after.astype(int) - before.astype(int)).sum(-1) > 30
+    assert changed.mean() > 0.002, f"the displaced points did not move on the canvas ({changed.mean():.4f})"
+    same = np.abs(initial.astype(int) - before.astype(int)).sum(-1) > 30
+    assert same.mean() < changed.mean() / 2, "before the update should look like the initial scene"
+    page.close()
