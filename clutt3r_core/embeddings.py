@@ -43,7 +43,9 @@ class MaskEmbedder(Protocol):
         """rgb (H, W, 3) uint8, masks (M, H, W) bool -> (M, dim) float32, rows unit norm
         (a zero row for an empty mask). An embedder with a true ``accepts_candidates``
         attribute also takes a ``scene.MaskCandidates`` (compact: no (M, H, W) stack is made;
-        the pipeline passes one), any other gets the stack."""
+        the pipeline passes one), any other gets the stack. One with a true ``beside_fusion``
+        attribute is called on a second thread while the point cloud is fused (it must be
+        thread-safe and light on memory)."""
         ...
 
 
@@ -99,6 +101,10 @@ class AppearanceEmbedder:
     accepts_candidates: ClassVar[bool] = True
     """``embed_masks`` also takes ``scene.MaskCandidates`` (their code image is the factorisation
     the histograms need; issue 13, 1080p memory)."""
+    beside_fusion: ClassVar[bool] = True
+    """Cheap, small and thread-safe (numpy and OpenCV, which release the GIL): the pipeline
+    embeds the views on a second thread while it fuses the point cloud (issue 13, whole-command
+    time). An embedder without this attribute runs after the fusion, as before."""
 
     @property
     def dim(self) -> int:

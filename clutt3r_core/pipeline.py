@@ -11,6 +11,8 @@ majority vote. A run folder is written and read by ``clutt3r_core.runs`` (``save
 
 from __future__ import annotations
 
+import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -123,6 +125,10 @@ def segment(
     numpy's BLAS runs on one thread for the call (threadpoolctl; restored after): every
     product here is small, where OpenBLAS's worker threads only spin (issue 13: 0.6-1 s of
     CPU of ~3 on a hard 640x480 scene, identical results).
+
+    The instance trees and a light embedder's embeddings (``beside_fusion``, the builtin
+    appearance one) are computed on a second thread while the point cloud is fused and
+    clustered; an embedder without that attribute runs in turn, after the occupancy.
     """
     from threadpoolctl import threadpool_limits
 
@@ -154,25 +160,54 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
             bar.update(1)
             bar.set_postfix_str(next_stage)
 
-    with timer("pointcloud"):
-        cloud = fuse_views(views, config.pointcloud)
-    try:
-        check_usable_depth(views, cloud, config.pointcloud)
-    except SceneError:
-        if bar is not None:  # clear the bar before the error is printed, not after it
-            bar.close()
-        raise
-    # the loader's own (e.g. a frame demoted to post-interaction), then what the fusion shows
-    warnings = tuple(scene.warnings) + view_warnings(views, cloud, config.pointcloud)
-    tick("supervoxels")
-    with timer("supervoxels"):
-        sv = build_supervoxels(cloud, config.supervoxels)
-    tick("trees")
-
-    with timer("trees"):
+    def build_trees():
         built = [build_tree_overlaps(v.masks, v.frame, config.trees) for v in views]
         trees = tuple(t for t, _ in built)
-        nodes_masks, nodes = _node_table(views, trees)
+        return (built, trees, *_node_table(views, trees))
+
+    def embed(nodes_masks) -> np.ndarray:
+        # compact candidates where the embedder takes them, else one view's stack at a time
+        compact = getattr(embedder, "accepts_candidates", False)
+        emb = [embedder.embed_masks(v.rgb, m if compact else m.stack()) for v, m in zip(views, nodes_masks)]
+        return np.concatenate(emb, axis=0).astype(np.float32) if emb else np.zeros((0, 1), np.float32)
+
+    def beside_fusion() -> tuple:
+        """Trees and embeddings (they need only the views) with their wall seconds."""
+        t0 = time.perf_counter()
+        tr = build_trees()
+        t1 = time.perf_counter()
+        return tr, embed(tr[2]), t1 - t0, time.perf_counter() - t1
+
+    # ours (issue 13): a light embedder (``beside_fusion``) and the trees it needs run on a
+    # second thread while the point cloud is fused and clustered (mostly one thread): the same
+    # calls on the same inputs, so the same results; their timings are their own wall seconds,
+    # listed where the stages were
+    pool = ThreadPoolExecutor(1) if getattr(embedder, "beside_fusion", False) else None
+    beside = pool.submit(beside_fusion) if pool is not None else None
+    try:
+        with timer("pointcloud"):
+            cloud = fuse_views(views, config.pointcloud)
+        try:
+            check_usable_depth(views, cloud, config.pointcloud)
+        except SceneError:
+            if bar is not None:  # clear the bar before the error is printed, not after it
+                bar.close()
+            raise
+        # the loader's own (e.g. a frame demoted to post-interaction), then what the fusion shows
+        warnings = tuple(scene.warnings) + view_warnings(views, cloud, config.pointcloud)
+        tick("supervoxels")
+        with timer("supervoxels"):
+            sv = build_supervoxels(cloud, config.supervoxels)
+        tick("trees")
+        if beside is not None:
+            (built, trees, nodes_masks, nodes), embeddings, t_trees, t_emb = beside.result()  # re-raises its error
+            timer.items.append(StageTiming("trees", t_trees))
+        else:
+            with timer("trees"):
+                built, trees, nodes_masks, nodes = build_trees()
+    finally:
+        if pool is not None:  # after an error above, the thread's work finishes and is dropped
+            pool.shutdown(wait=True)
     tick("occupancy")
 
     with timer("occupancy"):
@@ -193,11 +228,11 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
                           background)
     tick("embeddings + leaf graph")
 
-    with timer("embeddings"):
-        # compact candidates where the embedder takes them, else one view's stack at a time
-        compact = getattr(embedder, "accepts_candidates", False)
-        emb = [embedder.embed_masks(v.rgb, m if compact else m.stack()) for v, m in zip(views, nodes_masks)]
-        embeddings = np.concatenate(emb, axis=0).astype(np.float32) if emb else np.zeros((0, 1), np.float32)
+    if beside is not None:
+        timer.items.append(StageTiming("embeddings", t_emb))
+    else:
+        with timer("embeddings"):
+            embeddings = embed(nodes_masks)
 
     with timer("leaf_graph"):
         # support super-voxels carry no evidence of object identity (findings point 4)

@@ -35,26 +35,35 @@ def segment_command(
         mask_options: where the mask candidates come from (--masks auto|builtin|import|sam-onnx);
             generated ones are written to OUT/instance_masks/ and named in OUT/run.json.
     """
-    from rich.console import Console
-    from rich.markup import escape
-
-    from clutt3r_core.commands.masks import mask_choice
     from clutt3r_core.io import load_scene
-    from clutt3r_core.io.images import write_png
-    from clutt3r_core.pipeline import segment
-    from clutt3r_core.runs import save_run
-    from clutt3r_core.visualize import overview_sheet
 
-    console = Console(stderr=True)
     if preset:
         config = PRESETS[preset]
-    with console.status(f"loading {scene}"):
-        sc = load_scene(scene)
+    # ours (issue 13, whole-command time): the scene loads on a second thread (its decoders
+    # release the GIL) while this one imports the rest of the command and builds the embedder
+    # (the registry reads the installed entry points); a loading error is raised from result()
+    with ThreadPoolExecutor(1) as pool:
+        loading = pool.submit(load_scene, scene)
+        from rich.console import Console
+        from rich.markup import escape
+        from tqdm import tqdm  # noqa: F401  (the pipeline's progress bar)
+
+        from clutt3r_core.commands.masks import mask_choice
+        from clutt3r_core.embeddings import create_embedder
+        from clutt3r_core.io.images import write_png
+        from clutt3r_core.pipeline import segment
+        from clutt3r_core.runs import save_run
+        from clutt3r_core.visualize import overview_sheet
+
+        console = Console(stderr=True)
+        embedder = create_embedder(config.embedder)
+        with console.status(f"loading {scene}"):
+            sc = loading.result()
     masks = mask_choice(mask_options)
     if masks != "auto" or not all(v.masks is not None for v in sc.initial_views):
         why = f"--masks {mask_options.masks}" if masks != "auto" else "the scene has no mask candidates"
         console.print(f"mask candidates: generator [bold]{getattr(masks, 'name', 'builtin')}[/] ({why})")
-    seg = segment(sc, config, progress=True, masks=masks)
+    seg = segment(sc, config, embedder=embedder, progress=True, masks=masks)
     if seg.masks.generated:
         n = sum(len(c) for c in seg.masks.candidates)
         console.print(f"mask candidates: {n} on {len(seg.masks.frames)} views in {seg.masks.seconds:.1f} s")
