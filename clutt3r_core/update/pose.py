@@ -280,6 +280,7 @@ class _Solver:
         self.sub_scale = float(np.sqrt(len(pts) / len(sub)))  # sparser points: bigger splats close the silhouette
         self.p = torch.tensor(pts[sub] - self.c, dtype=torch.float64)
         self.col = torch.tensor(pb.colors[sub].astype(np.float64) / 255.0)
+        self.col_all = self.col.repeat(len(cfg.yaw_starts_deg), 1)  # rows of the batched probe
         Tcw = cam.T_camera_world
         self.Rcw = torch.tensor(Tcw[:3, :3])
         self.tcw = torch.tensor(Tcw[:3, 3])
@@ -313,90 +314,136 @@ class _Solver:
         self.rot_mask = self.full_mask if cfg.dof == "se3" else self.yaw_mask
 
     # -- geometry ------------------------------------------------------------------------
+    # Parameters are (B, 3) tensors, one row per yaw start: the probe evaluates its B starts in
+    # one batched pass (ours: each small torch op costs ~10 us of overhead forward and back, so
+    # B starts cost little more than one; measured in docs/update.md). Rows never mix: every
+    # operation is row-wise or a per-row (segment) mean, so the gradient of the summed loss
+    # gives each row its own gradient, and Adam is elementwise.
     def rotation(self, w):
-        """Rodrigues' formula (differentiable; the small-angle branch avoids 0/0 at w = 0).
+        """(B, 3, 3) Rodrigues' formula of the (B, 3) rotation vectors (differentiable; rows with
+        theta^2 < 1e-12 take the small-angle form I + [w]x, which avoids 0/0 at w = 0).
 
-        The cross-product matrix is one product with the constant (9, 3) generator ``_GEN`` (each
-        entry is +-1 x one component plus zeros: the same values as stacking the components) and
-        the identity is built once: the loss runs ~100 times per fit, and every small torch op
-        (forward and its backward node) costs ~10 us of overhead, more than its arithmetic."""
-        theta2 = (w * w).sum()
-        Kx = (self._gen @ w).view(3, 3)
-        if float(theta2.detach()) < 1e-12:
-            return self._eye + Kx
-        theta = theta2.sqrt()
+        The cross-product matrices are one product with the constant (9, 3) generator ``_gen``
+        (each entry is +-1 x one component plus zeros: the same values as stacking them)."""
         torch = self.torch
-        return self._eye + torch.sin(theta) / theta * Kx + (1 - torch.cos(theta)) / theta2 * (Kx @ Kx)
+        theta2 = (w * w).sum(dim=1)
+        Kx = (w @ self._gen.T).view(-1, 3, 3)
+        small = theta2.detach() < 1e-12
+        if bool(small.all()):
+            return self._eye + Kx
+        if bool(small.any()):  # safe values in the masked rows: their where() branch is not used
+            one = torch.ones_like(theta2)
+            th2 = torch.where(small, one, theta2)
+            th = th2.sqrt()
+            a = torch.where(small, one, torch.sin(th) / th)
+            b = torch.where(small, torch.zeros_like(theta2), (1 - torch.cos(th)) / th2)
+        else:
+            th = theta2.sqrt()
+            a, b = torch.sin(th) / th, (1 - torch.cos(th)) / theta2
+        return self._eye + a[:, None, None] * Kx + b[:, None, None] * (Kx @ Kx)
 
     def rotvec(self, params):
         # the mask of the running stage zeroes roll and pitch in the yaw stages (their Adam
         # state then stays at zero, so the SE(3) fine stage starts from the yaw result)
         return params["w"] * self.rot_mask
 
-    def matrix(self, params, R) -> np.ndarray:
-        """The motion at ``params``, whose rotation ``R`` the loss just computed (``last_R``: the
-        same values as computing it again; autograd does not change the forward arithmetic)."""
+    def matrix(self, params, R, row: int = 0) -> np.ndarray:
+        """The motion of row ``row`` of ``params``, whose rotations ``R`` (B, 3, 3) the loss just
+        computed (``last_R``: the same values as computing them again)."""
         with self.torch.no_grad():
-            return motion_matrix(R.detach().numpy(), self.c, params["t"].numpy()) @ self.T_init
+            return motion_matrix(R[row].detach().numpy(), self.c, params["t"][row].numpy()) @ self.T_init
+
+    def _seg_mean(self, x, seg: np.ndarray, counts: np.ndarray):
+        """(B,) mean of ``x`` (K,) per row ``seg`` (K,) int64 (rows ``counts`` (B,), 0 -> 0)."""
+        torch = self.torch
+        if len(counts) == 1:
+            return x.mean()[None] if counts[0] else torch.zeros(1, dtype=torch.float64)
+        s = torch.zeros(len(counts), dtype=torch.float64).index_add(0, torch.from_numpy(seg), x)
+        return s / torch.from_numpy(np.maximum(counts, 1).astype(np.float64))
 
     # -- one evaluation ------------------------------------------------------------------
     def losses(self, params, stage: StageConfig):
+        """(B,) total loss of each row of ``params`` and its (B,) terms; sets ``last_R`` (B, 3, 3)
+        and ``last_iou`` (B,) list, the IoU of each row's splats."""
         torch, pb, cfg = self.torch, self.pb, self.cfg
         R = self.rotation(self.rotvec(params))
         self.last_R = R
-        pw = self.p @ R.T + (self.c_t + params["t"])
+        B, N = R.shape[0], len(self.p)
+        pw = self.p @ R.transpose(1, 2) + (self.c_t + params["t"])[:, None, :]
         pc = pw @ self.Rcw.T + self.tcw
-        z = pc[:, 2:].clamp(min=1e-3)
-        uv = pc[:, :2] / z * self.f_uv + self.c_uv
+        z = pc[..., 2:].clamp(min=1e-3)
+        uv = (pc[..., :2] / z * self.f_uv + self.c_uv).reshape(B * N, 2)
         # non-differentiable selection: visibility and contour membership at the current pose
-        zn = pc[:, 2].detach().numpy()
-        sp = splat(pw.detach().numpy(), pb.camera, pb.voxel_size, self.sub_scale, with_points=False)
-        inside = sp.centre >= 0
-        cflat = np.maximum(sp.centre, 0)
-        zb = sp.zbuf.reshape(-1)
-        occ = sp.crop(self.occ2d).reshape(-1)
-        vis = inside & (zn <= zb[cflat] + OCCLUSION_MARGIN) & (zn <= occ[cflat] + OCCLUSION_MARGIN)
-        sil = sp.silhouette(self.occ2d)
-        self.last_iou = _window_iou(sp, sil, self.mask, self.mask_area) if sp.h and sp.w else 0.0
-        if vis.any():
-            # within the splat radius + 1.5 px of a pixel outside the silhouette (the window's
-            # border is outside), at the visible points' centre pixels only
-            contour = vis.copy()
-            contour[vis] = _near_outside(sil, cflat[vis], sp.radius[vis] + 1.5)
-        else:
-            contour = vis
+        zn_all = pc[..., 2].detach().numpy()
+        pw_np = pw.detach().numpy()
+        cidx, vidx, cseg, vseg, dsel, dval, dseg = [], [], [], [], [], [], []
+        n_c, n_v, n_d = np.zeros(B, np.int64), np.zeros(B, np.int64), np.zeros(B, np.int64)
+        ious = []
+        for b in range(B):
+            zn = zn_all[b]
+            sp = splat(pw_np[b], pb.camera, pb.voxel_size, self.sub_scale, with_points=False)
+            inside = sp.centre >= 0
+            cflat = np.maximum(sp.centre, 0)
+            zb = sp.zbuf.reshape(-1)
+            occ = sp.crop(self.occ2d).reshape(-1)
+            vis = inside & (zn <= zb[cflat] + OCCLUSION_MARGIN) & (zn <= occ[cflat] + OCCLUSION_MARGIN)
+            sil = sp.silhouette(self.occ2d)
+            ious.append(_window_iou(sp, sil, self.mask, self.mask_area) if sp.h and sp.w else 0.0)
+            if vis.any():
+                # within the splat radius + 1.5 px of a pixel outside the silhouette (the window's
+                # border is outside), at the visible points' centre pixels only
+                contour = vis.copy()
+                contour[vis] = _near_outside(sil, cflat[vis], sp.radius[vis] + 1.5)
+            else:
+                contour = vis
+            ci = np.flatnonzero(contour) if contour.any() else np.arange(N)  # no contour: all points
+            cidx.append(ci + b * N)
+            n_c[b] = len(ci)
+            vi = np.flatnonzero(vis)
+            vidx.append(vi + b * N)
+            n_v[b] = len(vi)
+            if self.depth is not None:
+                dn = sp.crop(self.depth2d).reshape(-1)[cflat]
+                ok = vis & sp.crop(self.mask).reshape(-1)[cflat] & np.isfinite(dn)
+                dsel.append(np.flatnonzero(ok) + b * N)
+                dval.append(dn[ok])
+                n_d[b] = int(ok.sum())
+        self.last_iou = ious
+        seg_c = np.repeat(np.arange(B), n_c)
         # integer indices and index_select: boolean-mask indexing runs a nonzero() and its
         # backward an index_put; each was ~50 us per step
-        P = uv.index_select(0, torch.from_numpy(np.flatnonzero(contour))) if contour.any() else uv
-        if len(self.C) and len(P):
+        P = uv.index_select(0, torch.from_numpy(np.concatenate(cidx)))
+        if len(self.C):
             # each point's nearest partner is chosen without gradient (the gradient of a minimum
             # flows through its argmin only) and the distances of those pairs are differentiated:
             # the same chamfer as min over torch.cdist, without the (|P|, |C|) backward; the
             # argmins by numpy (torch's argmin over dim 0 is ~4x slower on this strided matrix)
             with torch.no_grad():
                 d = torch.cdist(P, self.C).numpy()
-            near_c, near_p = torch.from_numpy(d.argmin(axis=1)), torch.from_numpy(d.argmin(axis=0))
-            chamfer = ((P - self.C.index_select(0, near_c)).norm(dim=1).mean()
-                       + (P.index_select(0, near_p) - self.C).norm(dim=1).mean()) / self.diag
+            near_c = d.argmin(axis=1)
+            starts = np.concatenate([[0], np.cumsum(n_c)[:-1]])
+            near_p = np.concatenate([d[o : o + k].argmin(axis=0) + o for o, k in zip(starts, n_c)])
+            d1 = (P - self.C.index_select(0, torch.from_numpy(near_c))).norm(dim=1)
+            d0 = (P.index_select(0, torch.from_numpy(near_p)) - self.C.repeat(B, 1)).norm(dim=1)
+            chamfer = (self._seg_mean(d1, seg_c, n_c) + d0.view(B, -1).mean(dim=1)) / self.diag
         else:
-            chamfer = torch.zeros((), dtype=torch.float64)
-        if vis.any():
+            chamfer = torch.zeros(B, dtype=torch.float64)
+        if n_v.any():
             # weight 1 for visible points, 0 otherwise: the mean over the visible ones
-            iv = torch.from_numpy(np.flatnonzero(vis))
+            iv = torch.from_numpy(np.concatenate(vidx))
             grid = (uv.index_select(0, iv) * self.g_scale - 1.0)[None, None]
             sampled = torch.nn.functional.grid_sample(self.img, grid, align_corners=True)[0, :, 0].T
-            photo = (sampled - self.col.index_select(0, iv)).abs().mean()
+            err = (sampled - self.col_all.index_select(0, iv)).abs().mean(dim=1)
+            photo = self._seg_mean(err, np.repeat(np.arange(B), n_v), n_v)
         else:
-            photo = torch.zeros((), dtype=torch.float64)
-        reg_z = (params["t"][2] / cfg.sigma_z) ** 2
-        depth_term = torch.zeros((), dtype=torch.float64)
-        if self.depth is not None:
-            dn = sp.crop(self.depth2d).reshape(-1)[cflat]
-            ok = vis & sp.crop(self.mask).reshape(-1)[cflat] & np.isfinite(dn)
-            if ok.any():
-                okt = torch.from_numpy(ok)
-                err = (pc[:, 2][okt] - torch.from_numpy(dn[ok])) / 0.01
-                depth_term = torch.nn.functional.huber_loss(err, torch.zeros_like(err), delta=1.0)
+            photo = torch.zeros(B, dtype=torch.float64)
+        reg_z = (params["t"][:, 2] / cfg.sigma_z) ** 2
+        depth_term = torch.zeros(B, dtype=torch.float64)
+        if self.depth is not None and n_d.any():
+            okt = torch.from_numpy(np.concatenate(dsel))
+            e = (pc[..., 2].reshape(-1).index_select(0, okt) - torch.from_numpy(np.concatenate(dval))) / 0.01
+            hub = torch.nn.functional.huber_loss(e, torch.zeros_like(e), delta=1.0, reduction="none")
+            depth_term = self._seg_mean(hub, np.repeat(np.arange(B), n_d), n_d)
         total = (stage.lambda_chamfer * chamfer + stage.lambda_photo * photo + stage.lambda_reg_z * reg_z
                  + (cfg.lambda_depth * depth_term if self.depth is not None else 0.0))
         return total, (chamfer, photo, reg_z, depth_term)
@@ -411,16 +458,35 @@ class _Solver:
         return _window_iou(sp, sp.silhouette(self.occ2d), self.mask, self.mask_area)
 
     # -- the schedule ----------------------------------------------------------------------
-    def new_params(self, yaw0: float, t0: np.ndarray):
+    def new_params(self, yaws: np.ndarray, t0: np.ndarray):
+        """(B, 3) parameters (one row per start yaw, radians) and their Adam."""
         torch = self.torch
-        t = torch.tensor(t0, dtype=torch.float64, requires_grad=True)
-        r = torch.tensor([0.0, 0.0, yaw0], dtype=torch.float64, requires_grad=True)
+        B = len(yaws)
+        t = torch.tensor(np.tile(t0, (B, 1)), dtype=torch.float64, requires_grad=True)
+        w = np.zeros((B, 3))
+        w[:, 2] = yaws
+        r = torch.tensor(w, dtype=torch.float64, requires_grad=True)
         params = {"w": r, "t": t}
         opt = _Adam(torch, [{"params": [r], "lr": self.cfg.lr_rotation},
                             {"params": [t], "lr": self.cfg.lr_translation}])
         return params, opt
 
-    def steps(self, params, opt, stage: StageConfig, stage_id: int, n: int, log: list, decay: bool = True) -> None:
+    def keep_row(self, params, opt, row: int):
+        """The parameters and Adam state of one row (the probe's best start), as a batch of one."""
+        torch = self.torch
+        new = {k: v.detach()[row : row + 1].clone().requires_grad_(True) for k, v in params.items()}
+        opt2 = _Adam(torch, [{"params": [new["w"]], "lr": self.cfg.lr_rotation},
+                             {"params": [new["t"]], "lr": self.cfg.lr_translation}])
+        for k in ("w", "t"):
+            st = opt.state.get(id(params[k]))
+            if st is not None:
+                opt2.state[id(new[k])] = {"step": st["step"], "m": st["m"][row : row + 1].clone(),
+                                          "v": st["v"][row : row + 1].clone()}
+        return new, opt2
+
+    def steps(self, params, opt, stage: StageConfig, stage_id: int, n: int, logs: list[list],
+              decay: bool = True) -> None:
+        """n Adam steps of every row of ``params``; row b's iterations go to ``logs[b]``."""
         scale = 1.0 if stage_id == 0 else self.cfg.fine_lr_scale
         base = [self.cfg.lr_rotation * scale, self.cfg.lr_translation * scale]
         for i in range(n):
@@ -430,43 +496,44 @@ class _Solver:
                 g["lr"] = lr * f
             opt.zero_grad()
             total, terms = self.losses(params, stage)
-            T = self.matrix(params, self.last_R)
+            vals = np.stack([total.detach().numpy()] + [x.detach().numpy() for x in terms], axis=1)
             # the IoU of an iteration comes from the splats the loss just made (subsampled points,
             # larger splats): measured on sample_seq1 the exact IoU of every step was 1/5 of an
             # update's CPU; the final IoU of each stage (early exit, verification) is exact
-            log.append((stage_id, T, [float(total.detach())] + [float(x.detach()) for x in terms],
-                        self.last_iou))
-            total.backward()
+            for b, log in enumerate(logs):
+                log.append((stage_id, self.matrix(params, self.last_R, b), vals[b].tolist(), self.last_iou[b]))
+            total.sum().backward()
             opt.step()
 
     def final(self, params, stage: StageConfig, stage_id: int, log: list) -> None:
         with self.torch.no_grad():
             total, terms = self.losses(params, stage)
         T = self.matrix(params, self.last_R)
-        log.append((stage_id, T, [float(total.detach())] + [float(x.detach()) for x in terms], self.iou(T)))
+        log.append((stage_id, T, [float(total[0])] + [float(x[0]) for x in terms], self.iou(T)))
 
     def run(self) -> PoseResult:
         cfg = self.cfg
         iou_before = self.iou(np.eye(4))
         t0 = initial_translation(self.pb, self.c) if self.pb.T_init is None else np.zeros(3)
-        best = None
-        for yaw in (cfg.yaw_starts_deg if self.pb.T_init is None else (0.0,)):
-            params, opt = self.new_params(np.deg2rad(yaw), t0)
-            log: list = []
-            self.steps(params, opt, cfg.coarse, 0, min(cfg.probe_iterations, cfg.coarse.iterations), log, decay=False)
-            with self.torch.no_grad():
-                score = float(self.losses(params, cfg.coarse)[0])
-            if best is None or score < best[0]:
-                best = (score, params, opt, log)
-        _, params, opt, log = best
-        self.steps(params, opt, cfg.coarse, 0, max(0, cfg.coarse.iterations - cfg.probe_iterations), log)
+        yaws = np.deg2rad(np.asarray(cfg.yaw_starts_deg if self.pb.T_init is None else (0.0,), np.float64))
+        # the probe: every start yaw runs probe_iterations coarse steps, in one batch; the lowest
+        # coarse loss after them continues (the first on ties)
+        params, opt = self.new_params(yaws, t0)
+        logs: list[list] = [[] for _ in yaws]
+        self.steps(params, opt, cfg.coarse, 0, min(cfg.probe_iterations, cfg.coarse.iterations), logs, decay=False)
+        with self.torch.no_grad():
+            score = self.losses(params, cfg.coarse)[0].numpy()
+        row = int(np.argmin(score))
+        params, opt = self.keep_row(params, opt, row)
+        log = logs[row]
+        self.steps(params, opt, cfg.coarse, 0, max(0, cfg.coarse.iterations - cfg.probe_iterations), [log])
         self.final(params, cfg.coarse, 0, log)
         stages = 1
         if not (cfg.early_exit and log[-1][3] >= cfg.tau_iou) and cfg.fine.iterations > 0:
             stages = 2
             if cfg.dof == "yaw-then-se3":
                 self.rot_mask = self.full_mask
-            self.steps(params, opt, cfg.fine, 1, cfg.fine.iterations, log)
+            self.steps(params, opt, cfg.fine, 1, cfg.fine.iterations, [log])
             self.final(params, cfg.fine, 1, log)
         trace = PoseTrace(
             stage=np.array([r[0] for r in log], np.int8),
