@@ -27,6 +27,22 @@ _QUERY_BLOCK = 1 << 13
 _PARALLEL_MIN_QUERIES = 1 << 12
 
 
+_OPENMP = None
+
+
+def _one_openmp_thread():
+    """A context limiting the OpenMP libraries loaded now (pykdtree's, once a tree exists) to one
+    thread for the calling thread. The controller is made once: ``threadpool_limits`` scans
+    every loaded library on each call (0.5-3 ms of CPU, and the normals and super-voxels make
+    about 30 such calls per 640x480 segmentation; issue 13)."""
+    global _OPENMP
+    if _OPENMP is None or not _OPENMP.lib_controllers:  # none loaded yet: look again next time
+        from threadpoolctl import ThreadpoolController
+
+        _OPENMP = ThreadpoolController().select(user_api="openmp")
+    return _OPENMP.limit(limits=1)
+
+
 def _max_workers() -> int:
     """Threads for the normals' blocks: the CPUs this process may use, at most 4 (ours: the
     blocks share the GIL between numpy calls; 2 threads on the project's 2-core machine)."""
@@ -68,9 +84,7 @@ def knn_query(tree, queries: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray
     """
     q = np.ascontiguousarray(queries, dtype=np.float64)
     if len(q) < _PARALLEL_MIN_QUERIES:
-        from threadpoolctl import threadpool_limits
-
-        with threadpool_limits(1, user_api="openmp"):
+        with _one_openmp_thread():
             d2, idx = tree.query(q, k=k, sqr_dists=True)
     else:
         d2, idx = tree.query(q, k=k, sqr_dists=True)
@@ -141,9 +155,7 @@ def estimate_normals(points: np.ndarray, knn: int, *, neighbours: bool = False):
         from concurrent.futures import ThreadPoolExecutor
 
         def one_thread_block(s0: int) -> None:
-            from threadpoolctl import threadpool_limits
-
-            with threadpool_limits(1, user_api="openmp"):
+            with _one_openmp_thread():
                 block(s0)
 
         with ThreadPoolExecutor(workers) as ex:

@@ -196,3 +196,23 @@ def test_knn_query_is_the_exact_knn_with_ties_by_index(seed, n, k, grid):
         assert set(idx[r, inner].tolist()) == set(ref_i[r, inner].tolist())
     if not grid:  # no ties: the very same table as cKDTree's
         np.testing.assert_array_equal(idx, ref_i)
+
+
+def test_one_openmp_thread_limits_and_restores_pykdtree_openmp():
+    """The cached controller (issue 13: one library scan, not one per query) limits the k-d
+    tree's OpenMP library to one thread inside the block and restores it after."""
+    from threadpoolctl import ThreadpoolController
+
+    from clutt3r_core import normals
+
+    normals.knn_tree(np.random.default_rng(0).random((10, 3)))  # pykdtree (and its OpenMP) loaded
+
+    def counts():
+        return [i["num_threads"] for i in ThreadpoolController().select(user_api="openmp").info()]
+
+    before = counts()
+    if not before:
+        pytest.skip("this pykdtree build has no OpenMP library")
+    with normals._one_openmp_thread():
+        assert counts() == [1] * len(before)
+    assert counts() == before
