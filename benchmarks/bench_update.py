@@ -25,7 +25,8 @@ views, run ``update_scene`` on the post view, and score against ``gt/interaction
 Usage::
 
     .venv/bin/python benchmarks/bench_update.py --out /tmp/bench_update [--pairs 12] [--seed0 100] \
-        [--embedder run] [--no-depth] [--no-depth-cues] [--refine-registration] [--no-photo] [--tilt-starts]
+        [--embedder run] [--no-depth] [--no-depth-cues] [--refine-registration] [--no-photo] [--tilt-starts] \
+        [--no-region-search] [--no-unfitted-presence]
 
 Scenes and runs are cached under ``--out`` (delete to regenerate). Prints a markdown table and
 writes ``results.json`` and one overlay PNG per pair.
@@ -300,10 +301,16 @@ def main() -> None:
                     help="PoseConfig.coarse.iterations (silhouette fit, probe steps included)")
     ap.add_argument("--fine-iterations", type=int, default=PoseConfig().fine.iterations,
                     help="PoseConfig.fine.iterations (silhouette fit)")
+    ap.add_argument("--no-region-search", action="store_true",
+                    help="ChangeConfig.search_unexplained=False: moved instances are registered to mask candidates only")
+    ap.add_argument("--no-unfitted-presence", action="store_true",
+                    help="ChangeConfig.unfitted_presence=False: a moved instance without a fit is removed")
     ap.add_argument("--tag", default="", help="suffix of results_<tag>.json")
     a = ap.parse_args()
     cfg = UpdateConfig(change=ChangeConfig(verify=not a.no_verify, min_fit_iou=a.min_fit_iou,
-                                           use_depth=not a.no_depth_cues, use_photo=not a.no_photo),
+                                           use_depth=not a.no_depth_cues, use_photo=not a.no_photo,
+                                           search_unexplained=not a.no_region_search,
+                                           unfitted_presence=not a.no_unfitted_presence),
                        pose=replace(PoseConfig(), dof=a.dof, early_exit=not a.no_early_exit,
                                     refine_registration=a.refine_registration,
                                     registration_photo_weight=a.photo_weight,

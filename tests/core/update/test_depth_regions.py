@@ -145,3 +145,28 @@ def test_region_fields_are_checked():
         with pytest.raises(SceneError, match=name):
             ChangeConfig(**{name: -1})
 
+
+
+def test_a_push_split_in_two_by_a_depth_hole_is_found_as_a_pair_of_regions():
+    # the pushed box's mask is dropped and a 4-px column without depth (a thin occluder the
+    # sensor missed) cuts its region in two; neither half alone reaches accept_iou_region
+    pts, cols, inst = two_boxes_on_a_table()
+    st = _state(pts, cols, inst)
+    c = st.points_of(0).astype(np.float64).mean(axis=0)
+    T = yaw_motion(20.0, (0.0, -0.05, 0.0), c)
+    moved = pts.copy()
+    moved[inst == 0] = moved[inst == 0] @ T[:3, :3].T + T[:3, 3]
+    v = render_view(moved, cols, inst, camera(**CAM), frame=8)
+    box = v.masks.masks[list(v.masks.ids).index(1)]
+    us = np.nonzero(box.any(axis=0))[0]
+    mid = int(us.mean())
+    depth = v.depth.copy()
+    depth[:, mid - 2 : mid + 2] = np.nan
+    v = _without_mask(View(v.frame, v.rgb, v.camera, depth, v.masks, v.name), 0)
+    singles = update_scene(st, v, UpdateConfig(change=ChangeConfig(region_pair_gap=0.0), pose=FAST.pose))
+    assert singles.record(0).status == "removed"
+    res = update_scene(st, v, FAST)
+    r0 = res.record(0)
+    assert r0.status == "displaced" and r0.match == "depth-region"
+    est = r0.T_world[:3, :3] @ c + r0.T_world[:3, 3]
+    assert np.linalg.norm(est - (T[:3, :3] @ c + T[:3, 3])) < 0.005
