@@ -92,7 +92,7 @@ class Splats:
 
 
 _RANK_LIMIT = 1 << 24
-"""Ranks below 2^24 are exact in float32 (``_zbuf_by_filter``); larger groups filter the z itself."""
+"""Ranks below 2^24 are exact in float32 (``_zbuf_by_filter``); more points filter the z itself."""
 
 
 def _zbuf_by_filter(z: np.ndarray, u: np.ndarray, v: np.ndarray, r: np.ndarray, idx: np.ndarray,
@@ -104,41 +104,54 @@ def _zbuf_by_filter(z: np.ndarray, u: np.ndarray, v: np.ndarray, r: np.ndarray, 
 
     The filter is OpenCV's erosion with a square kernel and an inf border: the same values as
     ``scipy.ndimage.minimum_filter(..., mode="constant", cval=inf)`` (a minimum is exact;
-    tests/core/update/test_pose_speed.py compares them), ~3x less CPU on the pose fit's windows."""
+    tests/core/update/test_pose_speed.py compares them), ~3x less CPU on the pose fit's windows.
+    It runs on each point's rank in z order, in float32 (exact below 2^24 points), and the
+    minimum rank over the radius groups maps back to its z once: the minimum of ranks is the
+    rank of the minimum, so the z-buffer is the same float64 values. OpenCV's float32 erosion is
+    ~4x faster than its float64 one (measured on the pose fit's ~130x150 windows, where these
+    filters were a third of a splat's CPU)."""
     import cv2
 
-    out = np.full((h, w), np.inf)
-    for rr in np.unique(r[idx]):
-        g = idx[r[idx] == rr]
-        rr = int(rr)
-        uu, vv = u[g] - u0 + rr, v[g] - v0 + rr
+    zi = z[idx]
+    ranked = len(zi) < _RANK_LIMIT
+    if ranked:
+        order = np.argsort(zi, kind="stable")
+        key = np.empty(len(zi), np.float32)
+        key[order] = np.arange(len(zi), dtype=np.float32)
+    else:
+        key = zi
+    ri, ui, vi = r[idx], u[idx] - u0, v[idx] - v0
+    best = np.full((h, w), np.inf, key.dtype)
+    rmin = int(ri.min())
+    counts = np.bincount(ri - rmin)
+    for k in np.flatnonzero(counts):
+        rr = int(k) + rmin
+        g = np.flatnonzero(ri == rr) if len(counts) > 1 else slice(None)
+        uu, vv = ui[g] + rr, vi[g] + rr
         ph, pw = h + 2 * rr, w + 2 * rr
         inside = (uu >= 0) & (uu < pw) & (vv >= 0) & (vv < ph)  # the rest cannot reach the window
-        zg = z[g][inside]
-        kernel = np.ones((2 * rr + 1, 2 * rr + 1), np.uint8)
-        if len(zg) < _RANK_LIMIT:
-            # the filter runs on each point's rank in z order, in float32 (exact below 2^24),
-            # and the ranks map back to their z: the minimum of ranks is the rank of the
-            # minimum, so the z-buffer is the same float64 values. OpenCV's float32 erosion is
-            # ~4x faster than its float64 one (measured on the pose fit's ~130x150 windows,
-            # where these filters were a third of a splat's CPU)
-            order = np.argsort(zg, kind="stable")
-            rank = np.empty(len(zg), np.float32)
-            rank[order] = np.arange(len(zg), dtype=np.float32)
-            cz = np.full(ph * pw, np.inf, np.float32)
-            np.minimum.at(cz, vv[inside] * pw + uu[inside], rank)
-            zr = cv2.erode(cz.reshape(ph, pw), kernel, borderType=cv2.BORDER_CONSTANT,
-                           borderValue=np.inf)[rr : rr + h, rr : rr + w]
-            hit = np.isfinite(zr)
-            zz = np.full((h, w), np.inf)
-            zz[hit] = zg[order][zr[hit].astype(np.int64)]
-        else:
-            cz = np.full(ph * pw, np.inf)
-            np.minimum.at(cz, vv[inside] * pw + uu[inside], zg)
-            zz = cv2.erode(cz.reshape(ph, pw), kernel, borderType=cv2.BORDER_CONSTANT,
-                           borderValue=np.inf)[rr : rr + h, rr : rr + w]
-        np.minimum(out, zz, out=out)
-    return out.reshape(-1)
+        cz = np.full(ph * pw, np.inf, key.dtype)
+        np.minimum.at(cz, vv[inside] * pw + uu[inside], key[g][inside])
+        er = cv2.erode(cz.reshape(ph, pw), _square(rr), borderType=cv2.BORDER_CONSTANT, borderValue=np.inf)
+        np.minimum(best, er[rr : rr + h, rr : rr + w], out=best)
+    if not ranked:
+        return best.reshape(-1)
+    out = np.full(h * w, np.inf)
+    b = best.reshape(-1)
+    hit = np.isfinite(b)
+    out[hit] = zi[order][b[hit].astype(np.int64)]
+    return out
+
+
+_SQUARES: dict[int, np.ndarray] = {}
+
+
+def _square(r: int) -> np.ndarray:
+    """(2r+1, 2r+1) uint8 ones: the erosion kernel of a splat of half-size r, cached."""
+    k = _SQUARES.get(r)
+    if k is None:
+        k = _SQUARES[r] = np.ones((2 * r + 1, 2 * r + 1), np.uint8)
+    return k
 
 
 def _may_win(zbuf: np.ndarray, z: np.ndarray, u: np.ndarray, v: np.ndarray, r: np.ndarray, idx: np.ndarray,

@@ -130,3 +130,29 @@ def test_splat_point_buffer_matches_full_expansion(seed: int, n: int, dup: bool,
     zref, pref = _splat_points_reference(pts, cam, 0.01, window=window)
     assert np.array_equal(s.zbuf, zref)
     assert np.array_equal(s.point, pref)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(1, 300), ties=st.booleans())
+def test_zbuf_on_ranks_equals_the_zbuf_on_z(seed: int, n: int, ties: bool) -> None:
+    """project._zbuf_by_filter filters float32 ranks and maps them back to z: the same float64
+    z-buffer as filtering the z themselves (its path for 2^24 points or more), several radius
+    groups, tied depths and points centred outside the window included."""
+    from clutt3r_core.update import project
+
+    rng = np.random.default_rng(seed)
+    h, w = int(rng.integers(1, 50)), int(rng.integers(1, 50))
+    u = rng.integers(-8, w + 8, n)
+    v = rng.integers(-8, h + 8, n)
+    r = rng.integers(0, 6, n)
+    z = np.round(rng.uniform(0.2, 2.0, n), 2 if ties else 12)
+    idx = np.flatnonzero(rng.random(n) < 0.9)
+    if not len(idx):
+        return
+    ranked = project._zbuf_by_filter(z, u, v, r, idx, 0, 0, h, w)
+    old, project._RANK_LIMIT = project._RANK_LIMIT, 0
+    try:
+        direct = project._zbuf_by_filter(z, u, v, r, idx, 0, 0, h, w)
+    finally:
+        project._RANK_LIMIT = old
+    assert ranked.dtype == direct.dtype == np.float64 and np.array_equal(ranked, direct)
