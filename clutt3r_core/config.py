@@ -123,9 +123,6 @@ ADDITIONS: tuple[Addition, ...] = (
     Addition("surface-estimate", "when the views' depths disagree by >= 1 mm (sensor noise, measured from the data), "
              "the raw points are moved onto the views' TSDF consensus surface before voxelisation",
              (("pointcloud.surface", "auto", "voxel-mean"),)),
-    Addition("surface-rim-fill", "with the surface estimate, a voxel holding one point it could not move (object rims) "
-             "is kept when it borders a kept voxel",
-             (("pointcloud.surface_rim_neighbours", 1, 0),), needs=("surface-estimate",)),
 )
 """Every rule of ours over the paper's explicit text that changes a result, with its switch.
 Choices the text leaves open (and that both presets share) are listed in docs/paper_choices.md."""

@@ -30,8 +30,9 @@ This module estimates the surface across views first, KinectFusion-style (Newcom
 5. the moved points are then voxel-averaged as before and a pixel maps to the voxel its moved
    point lands in. A voxel is kept when ``min_points`` moved points land in it, or one point
    moved from a voxel that held ``min_points`` raw points (a well observed surface that only
-   clips the voxel's corner puts few samples in it), or when it holds a single point that could
-   not be moved and borders kept voxels (``PointCloudConfig.surface_rim_neighbours``): object rims,
+   clips the voxel's corner puts few samples in it), or, when switched on, when it holds a single
+   point that could not be moved and borders kept voxels (``PointCloudConfig.surface_rim_neighbours``,
+   off by default: it costs hard AP50, docs/benchmark/strict-iou.md): object rims,
    where depth edges and grazing views leave sparse samples and the field no usable gradient,
    were the largest share of the GT object cells without a fused point.
 
