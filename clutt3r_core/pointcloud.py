@@ -91,13 +91,9 @@ class PointCloudConfig:
     (first version of the estimate)."""
 
     surface_rim_neighbours: int = 0
-    """With ``surface="tsdf"``: a voxel whose only point could not be moved onto the estimate (object
-    rims: depth edges and grazing views, where the field has no usable gradient) is kept when at
-    least this many of its 26 neighbour voxels are kept; 0 = never (ours, issue 13; OFF by default).
-    Measured with 1, RealSense-like depth (docs/benchmark/strict-iou.md, third pass): GT object
-    cells with no fused point 8.6 -> 5.9 % (tuning), 1.17x the voxels, standard suite AP 50.2 ->
-    51.8 but hard AP50 93.0 -> 90.3: the added voxels enter the super-voxels and the vote, and on
-    two hard scenes of six they make a fragment or move a labelling boundary."""
+    """With ``surface="tsdf"``: a voxel whose only point the estimate could not move (object rims) is
+    kept when this many of its 26 neighbours are kept; 0 = never (ours, issue 13; OFF: with 1 the
+    standard suite's AP goes 50.2 -> 51.8 but hard AP50 93.0 -> 90.3, docs/benchmark/strict-iou.md)."""
 
     def __post_init__(self) -> None:
         if self.surface not in ("voxel-mean", "tsdf", "auto"):
