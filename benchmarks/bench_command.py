@@ -2,7 +2,7 @@
 
 Usage::
 
-    .venv/bin/python benchmarks/bench_command.py [--base 357d37c] [--current REF] [--runs 3] [--work /tmp/clutt3r-bench-command]
+    .venv/bin/python benchmarks/bench_command.py [--base 35e98a0] [--current REF] [--runs 3] [--work /tmp/clutt3r-bench-command]
         [--scenes hard:0] [--samples sample_seq4] [--no-base] [--out results.json]
 
 Issue 13 measured the whole command, not only the core: on a hard 640x480 8-view scene it
@@ -59,6 +59,17 @@ trees, occupancy, histograms and duplicates read the codes), Sub-filtered mask P
 from their value changes, OpenCV histograms for the appearance descriptor, and one loader
 thread per core (each extra thread kept its own malloc arena: 530 MiB peak with 8 threads,
 390 with 2). 600 MiB is met; 4 s is not on this machine (docs/benchmark.md, third round).
+Fourth round, measured 2026-12-01 00:29-00:35 UTC against 35e98a0 (``--current 2cd687e`` =
+35e98a0 plus the fourth round's commits only; shared 2-core machine at load average 6-10, wall
+2-4x an idle machine's), median of 3, current / base: hard 640x480 whole command CPU 2.90 /
+2.90 s, peak RSS 312 / 306 MiB, warm core CPU 1.74 / 1.75 s (no change at 640x480);
+sample_seq4 whole command CPU 4.77 / 5.37 s (0.89), peak RSS 508 / 467 MiB (a second thread's
+malloc arena), warm core CPU 2.30 / 2.38 s, load_scene CPU 1.34 / 1.58 s (bench_core_stages.py).
+Identical arrays on the 8 check scenes. What made the difference: zlib-ng inflating the mask
+PNGs and run-based set compaction of the mask codes; the later imports beside the loading, the
+trees and embeddings beside the fusion and overview.png beside save_run save wall time only
+where a core is idle, which this machine could not show (docs/benchmark.md, "Whole command",
+fourth round).
 Base and ``--current`` checkouts are ``git worktree``s under ``--work``, kept for the next run
 (``git worktree remove`` them when done).
 
@@ -81,10 +92,11 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT.parent / "shared" / "data" / "clutt3r-samples"
-# main at the start of the third round of issue-13 work (the 1080p masks as code images); the
-# second round's base was 2bca0bb (before the overview splat, BLAS threads, shared k-NN), the
-# first round's dfdac67 (before the lazy CLI and open3d-free normals)
-BASE_REF = "357d37c"
+# main at the start of the fourth round of issue-13 work (zlib-ng masks, threads beside the
+# fusion and the saving); the third round's base was 357d37c (before the 1080p masks as code
+# images), the second round's 2bca0bb (before the overview splat, BLAS threads, shared k-NN),
+# the first round's dfdac67 (before the lazy CLI and open3d-free normals)
+BASE_REF = "35e98a0"
 TARGETS = {  # whole-process wall s, core wall s, peak RSS MiB (issue 13)
     "generated": (2.0, 1.0, None),
     "sample_seq4": (4.0, None, 600.0),

@@ -2,7 +2,7 @@
 
 Usage::
 
-    .venv/bin/python benchmarks/bench_core_stages.py [--base 357d37c] [--current REF] [--runs 3]
+    .venv/bin/python benchmarks/bench_core_stages.py [--base 35e98a0] [--current REF] [--runs 3]
         [--scenes hard:0] [--samples sample_seq1] [--work /tmp/clutt3r-bench-command] [--out stages.json]
 
 ``benchmarks/bench_command.py`` times the whole command and the core; this one splits them,
@@ -18,7 +18,11 @@ in CPU seconds (``time.process_time``: on the project's shared 2-core machine wa
   one, mostly lazy imports (threadpoolctl, tqdm, the k-NN library, scipy.sparse.csgraph before
   issue 13's third round);
 - every stage of one warm ``segment(scene)`` (``trace.timings``, the pipeline's ``StageClock``
-  switched to CPU time in the child), and the warm call as a whole;
+  switched to CPU time in the child), and the warm call as a whole. Since issue 13's fourth
+  round the trees and the (light, builtin) embeddings run on a second thread beside the fusion
+  and super-voxels: their rows are that thread's own wall seconds, and the CPU of the
+  ``pointcloud`` and ``supervoxels`` rows (process-wide ``time.process_time``) includes what
+  that thread spent meanwhile; the warm call's total is exact either way;
 
 medians over the processes, and the current / base ratio. Not a unit test: the numbers depend
 on the machine and its load; the instance labels are checked equal (``same``).
@@ -49,7 +53,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_command import ROOT, _env, _ref_tree, _scenes  # noqa: E402  (this folder's sibling script)
 
-BASE_REF = "357d37c"  # main before issue 13's third speed round (pykdtree, own components)
+BASE_REF = "35e98a0"  # main before issue 13's fourth speed round (third round: 357d37c)
 
 _HARNESS = """
 import json, sys, time
