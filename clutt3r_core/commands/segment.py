@@ -82,6 +82,7 @@ def segment_command(
 
 def _prepare(embedder_name: str):
     """The command's later imports and its embedder: (segment, save_run, overview_sheet, embedder)."""
+    import numpy.random  # noqa: F401  (the support plane's RANSAC; 30 ms, imported lazily by numpy)
     from tqdm import tqdm  # noqa: F401  (the pipeline's progress bar)
 
     from clutt3r_core.embeddings import create_embedder
