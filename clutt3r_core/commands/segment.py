@@ -47,8 +47,8 @@ def segment_command(
     console = Console(stderr=True)
     # ours (issue 13, whole-command time): a second thread imports the rest of the command and
     # builds the embedder (the registry reads the installed entry points) while this one loads
-    # the scene (its decoders release the GIL). Not the other way round: the loading thread's
-    # malloc arena kept its image temporaries, +20-30 MiB of peak at 1080p.
+    # the scene (its decoders release the GIL). The loading stays on this thread, so its
+    # errors come first, as before.
     with ThreadPoolExecutor(1) as pool:
         preparing = pool.submit(_prepare, config.embedder)
         with console.status(f"loading {scene}"):
