@@ -27,7 +27,7 @@ def update_app(tiny_run_dir, tiny_seg, tmp_path_factory):
     run = tmp_path_factory.mktemp("update_run") / "run"
     shutil.copytree(tiny_run_dir, run)
     s0 = state_from_segmentation(tiny_seg, run=run)
-    r1 = _fake_update(s0, 8, k=0, shift=0.15, removed=None, n_iter=5)  # a big move: visible on the canvas
+    r1 = _fake_update(s0, 8, k=0, shift=0.15, removed=2, n_iter=5)  # a big move: visible on the canvas
     save_state(apply_update(s0, r1), run / "updates" / "01_frame_000008", r1)
     a = clutt3r_viewer.start(run, port=free_port())
     yield a
@@ -72,7 +72,8 @@ def test_replay_steps_the_pose_iterations(browser, update_app, artifacts):  # no
 
 def test_updates_tab_moves_the_points_to_the_updated_poses(browser, update_app, artifacts):  # noqa: F811
     """Choosing update 0 in the Updates tab moves the displaced instance's points (15 cm) on the
-    canvas; unchecking "After the update" puts them back where they were before it."""
+    canvas and draws the removed one pale; unchecking "After the update" puts them back where
+    they were before it."""
     from clutt3r_viewer.panels.scene import ScenePanel
 
     page, sess = _open(browser, update_app)
@@ -100,8 +101,11 @@ def test_updates_tab_moves_the_points_to_the_updated_poses(browser, update_app, 
     time.sleep(1.5)
     before = _canvas_shot(page)
     page.screenshot(path=str(artifacts / "viewer_update_before.png"))
-    # nothing was removed: the colours are the same, so what differs on the canvas is where the points are
-    assert np.array_equal(np.asarray(cloud.colors), colours_after)
+    # only the removed instance's colour differs (pale after the update, its own colour before)
+    gone = d.seg.instance[sess.lod_idx] == 2
+    was = np.asarray(cloud.colors)[gone].astype(int)
+    assert gone.any() and np.all(colours_after[gone] >= was) and np.all(colours_after[gone].sum(-1) > was.sum(-1))
+    assert np.array_equal(np.asarray(cloud.colors)[~gone], colours_after[~gone])
     changed = np.abs(after.astype(int) - before.astype(int)).sum(-1) > 30
     assert changed.mean() > 0.002, f"the displaced points did not move on the canvas ({changed.mean():.4f})"
     same = np.abs(initial.astype(int) - before.astype(int)).sum(-1) > 30
