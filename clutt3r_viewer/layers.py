@@ -21,8 +21,7 @@ if TYPE_CHECKING:
     from clutt3r_viewer.events import EventSource
 
 __all__ = ["HIGHLIGHT", "LayerInput", "ColorLayer", "COLOR_LAYERS", "register_color_layer", "layer_named",
-           "available_layers", "InstanceLayer", "RgbLayer", "ConfidenceLayer", "ReplayLayer", "QueryLayer",
-           "UpdateLayer"]
+           "available_layers", "InstanceLayer", "RgbLayer", "ConfidenceLayer", "ReplayLayer", "QueryLayer"]
 
 HIGHLIGHT = np.array([255, 215, 0], np.uint8)
 
@@ -131,24 +130,9 @@ class QueryLayer:
         return col
 
 
-@dataclass(frozen=True)
-class UpdateLayer:
-    """Instances after the selected post-interaction frame (the Updates panel)."""
-
-    name: str = "update"
-
-    def available(self, inp: LayerInput, state: SessionState) -> bool:
-        return any(u.point_instance is not None for u in inp.data.updates)
-
-    def colors(self, inp: LayerInput, state: SessionState) -> np.ndarray:
-        ups = inp.data.updates
-        if 0 <= state.update < len(ups) and ups[state.update].point_instance is not None:
-            return label_colors(ups[state.update].point_instance[inp.idx])
-        return label_colors(inp.instance[inp.idx])  # -1 = the initial segmentation
-
-
-COLOR_LAYERS: list[ColorLayer] = [InstanceLayer(), RgbLayer(), ConfidenceLayer(), ReplayLayer(), QueryLayer(),
-                                  UpdateLayer()]
+# The "update" layer (the scene after a post-interaction frame) is registered by
+# panels.update_sources, which owns the update chain's data.
+COLOR_LAYERS: list[ColorLayer] = [InstanceLayer(), RgbLayer(), ConfidenceLayer(), ReplayLayer(), QueryLayer()]
 
 
 def register_color_layer(layer: ColorLayer) -> ColorLayer:

@@ -13,9 +13,8 @@ Importing this module registers:
   instance's points to its pose at iteration n (instances of one update move together; a
   shorter optimisation holds its last pose), composed with the motions of earlier updates;
   colour = the iteration's total loss;
-- the colour layer "update" (``register_color_layer``, replacing ``layers.UpdateLayer`` in
-  place): the Updates tab's scene after (or just before) the selected update, from
-  ``updated_scene``: instances coloured by id, the points of removed instances pale (ghosts,
+- the colour layer "update" (``register_color_layer``): the Updates tab's scene after (or
+  just before) the selected update, from ``updated_scene``: instances coloured by id, the points of removed instances pale (ghosts,
   left where they were last seen). The same scene's positions move the cloud
   (``panels.updates.update_positions``).
 """
