@@ -123,6 +123,9 @@ ADDITIONS: tuple[Addition, ...] = (
     Addition("surface-estimate", "when the views' depths disagree by >= 1 mm (sensor noise, measured from the data), "
              "the raw points are moved onto the views' TSDF consensus surface before voxelisation",
              (("pointcloud.surface", "auto", "voxel-mean"),)),
+    Addition("rim-attach", "with the surface estimate, lone unmoved points next to kept voxels (object rims) are kept "
+             "apart and take the majority label of their 6 nearest segmented voxels after the vote",
+             (("pointcloud.surface_rim_neighbours", 1, 0),)),
 )
 """Every rule of ours over the paper's explicit text that changes a result, with its switch.
 Choices the text leaves open (and that both presets share) are listed in docs/paper_choices.md."""
@@ -211,6 +214,8 @@ ADDED_AFTER_V1: dict[str, Any] = {
     "pointcloud.surface_min_points": 2,
     "pointcloud.surface_auto_sigma": 0.001,
     "pointcloud.surface_rim_neighbours": 0,
+    "pointcloud.surface_rim_attach_k": 0,
+    "pointcloud.surface_rim_attach_distance": 0.02,
 }
 """Fields added after trace version 1, each with the value that reproduces the code that wrote
 such a trace (issue 13: the first two only made existing rules switchable; the others are

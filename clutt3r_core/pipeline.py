@@ -24,6 +24,7 @@ from clutt3r_core.errors import SceneError
 from clutt3r_core.masks import MaskGenerator, MaskProvenance, ensure_candidates
 from clutt3r_core.occupancy import mask_occupancy, mask_voxel_hits
 from clutt3r_core.pointcloud import fuse_views
+from clutt3r_core.rim import attach_labels
 from clutt3r_core.runs import load_run, save_run  # noqa: F401  (re-exported)
 from clutt3r_core.scene import MaskCandidates, Scene
 from clutt3r_core.segmentation.evidence import background_masks, check_views
@@ -57,7 +58,8 @@ class Segmentation:
     """3D instances of a scene and the trace that produced them.
 
     Attributes:
-        points: (N, 3) float32 world metres (fused voxel centres).
+        points: (N, 3) float32 world metres (fused voxel centres); the last ``trace.surface.rim``
+            are the fusion's rim voxels, labelled after the vote (``clutt3r_core.rim``).
         colors: (N, 3) uint8.
         normals: (N, 3) float32 unit.
         counts: (N,) int32 raw points per voxel.
@@ -261,6 +263,19 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
         echo = weak_echoes(cloud.points, cloud.normals, cloud.counts, config.pointcloud.voxel_size,
                            config.refine.weak_echo_ratio)
         instance = np.where(echo, -1, instance)
+    points, colors, normals, counts, sv_labels = cloud.points, cloud.colors, cloud.normals, cloud.counts, sv.labels
+    if cloud.rim is not None:
+        # ours (issue 13): the rim voxels the fusion kept apart take their segmented neighbours'
+        # majority label and join the super-voxel of the nearest voter with it; appended last
+        # (``SurfaceChoice.rim`` of them), so every index into the segmented cloud stays valid
+        with timer("attach"):
+            rim = cloud.rim
+            att = attach_labels(cloud.points, instance, rim.points, config.pointcloud.surface_rim_attach_k,
+                                config.pointcloud.surface_rim_attach_distance)
+            instance = np.concatenate([instance, att.label])
+            sv_labels = np.concatenate([sv.labels, sv.labels[att.source]])
+            points, colors = np.concatenate([points, rim.points]), np.concatenate([colors, rim.colors])
+            normals, counts = np.concatenate([normals, rim.normals]), np.concatenate([counts, rim.counts])
     tick("done")
     if bar is not None:
         bar.close()
@@ -281,13 +296,13 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
         surface=cloud.surface,
     )
     return Segmentation(
-        points=cloud.points,
-        colors=cloud.colors,
-        normals=cloud.normals,
-        counts=cloud.counts,
+        points=points,
+        colors=colors,
+        normals=normals,
+        counts=counts,
         instance=instance.astype(np.int32),
         scores=vote.scores,
-        sv_labels=sv.labels,
+        sv_labels=sv_labels,
         sv_support=sv.support,
         trace=trace,
         scene_name=scene.name,

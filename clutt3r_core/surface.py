@@ -31,10 +31,12 @@ This module estimates the surface across views first, KinectFusion-style (Newcom
    point lands in. A voxel is kept when ``min_points`` moved points land in it, or one point
    moved from a voxel that held ``min_points`` raw points (a well observed surface that only
    clips the voxel's corner puts few samples in it), or, when switched on, when it holds a single
-   point that could not be moved and borders kept voxels (``PointCloudConfig.surface_rim_neighbours``,
-   off by default: it costs hard AP50, docs/benchmark/strict-iou.md): object rims,
-   where depth edges and grazing views leave sparse samples and the field no usable gradient,
-   were the largest share of the GT object cells without a fused point.
+   point that could not be moved and borders kept voxels (a *rim* voxel,
+   ``PointCloudConfig.surface_rim_neighbours``): object rims, where depth edges and grazing views
+   leave sparse samples and the field no usable gradient, were the largest share of the GT object
+   cells without a fused point. The fusion keeps rim voxels apart (``FusedCloud.rim``): segmented
+   with the cloud they cost hard AP50, labelled after the vote by their neighbours they do not
+   (``PointCloudConfig.surface_rim_attach_k``, docs/benchmark/strict-iou.md).
 
 Whether to run it at all is decided from the data (``PointCloudConfig.surface = "auto"``, ours'
 default): ``depth_agreement.depth_disagreement`` measures how much the views disagree about the surface, and the
@@ -392,15 +394,22 @@ class SurfaceChoice:
             ``surface="auto"`` decided on; NaN when not measured (``surface`` set explicitly).
         move_noise: metres at 1 m, the noise the moves were limited by
             (``SnappedPoints.move_noise``); NaN without the surface estimate.
+        rim: rim voxels the fusion set apart (``FusedCloud.rim``); the pipeline labels them after
+            the vote and appends them: they are the last ``rim`` points of the ``Segmentation``
+            (0 in older traces, and when the rim voxels joined the cloud before segmentation).
     """
 
     method: str
     disagreement: float = float("nan")
     move_noise: float = float("nan")
+    rim: int = 0
 
     def __post_init__(self) -> None:
         if self.method not in ("voxel-mean", "tsdf"):
             raise SceneError(f"SurfaceChoice.method must be 'voxel-mean' or 'tsdf', got {self.method!r}")
+        if int(self.rim) < 0:
+            raise SceneError(f"SurfaceChoice.rim must be >= 0, got {self.rim}")
+        object.__setattr__(self, "rim", int(self.rim))
 
 
 def _snap_and_filter(views, P, C, pix_list, offsets, strides, cfg, params):
@@ -408,12 +417,13 @@ def _snap_and_filter(views, P, C, pix_list, offsets, strides, cfg, params):
     pixels (``pix_list[v]``: flat pixel indices of view v) and ``offsets`` (V + 1,), less the points
     of voxels that fail the occupancy rule: a voxel of the moved points is kept when it holds
     ``cfg.surface_min_points`` of them or one trusted point (``SnappedPoints.trusted``), or a single
-    point that could not be moved and ``cfg.surface_rim_neighbours`` kept neighbours. Every kept
-    point's voxel is then kept by the fusion (``min_points`` 1 there). Last: the move noise."""
+    point that could not be moved and ``cfg.surface_rim_neighbours`` kept neighbours (a *rim* voxel).
+    Every kept point's voxel is then kept by the fusion (``min_points`` 1 there). Last: the move
+    noise and the (P',) bool rim flag of each kept point (None without rim voxels)."""
     from clutt3r_core.pointcloud import _group_keys, _voxel_keys
 
     if len(P) == 0:  # no depth at all: the fusion reports it
-        return P, C, pix_list, offsets, float("nan")
+        return P, C, pix_list, offsets, float("nan"), None
     # each point's depth in its own view, for the noise limit of the moves
     zp = np.empty(len(P), np.float32)
     for v, view in enumerate(views):
@@ -426,18 +436,25 @@ def _snap_and_filter(views, P, C, pix_list, offsets, strides, cfg, params):
     inverse, counts = _group_keys(keys, ext)
     trusted = np.bincount(inverse[sn.trusted], minlength=len(counts)) > 0
     kept = (counts >= cfg.surface_min_points) | trusted
+    rim = None
     if cfg.surface_rim_neighbours > 0:
         # a lone point the estimate could not move (a rim: depth edge, grazing view) next to kept voxels
         lone = np.flatnonzero(~kept & (counts == 1))
         lone = lone[np.bincount(inverse[sn.moved], minlength=len(counts))[lone] == 0]
-        kept[lone[_kept_neighbours(keys, ext, inverse, kept, lone) >= cfg.surface_rim_neighbours]] = True
+        rim_vox = lone[_kept_neighbours(keys, ext, inverse, kept, lone) >= cfg.surface_rim_neighbours]
+        kept[rim_vox] = True
+        if len(rim_vox):
+            rim = np.zeros(len(counts), bool)
+            rim[rim_vox] = True
     del keys
     keep = kept[inverse]
+    if rim is not None:
+        rim = rim[inverse][keep]  # per kept point; a rim voxel holds exactly one point
     if keep.all():
-        return sn.points, C, pix_list, offsets, sn.move_noise
+        return sn.points, C, pix_list, offsets, sn.move_noise, rim
     pix_list = [pix[keep[offsets[v] : offsets[v + 1]]] for v, pix in enumerate(pix_list)]
     offsets = np.concatenate([[0], np.cumsum([len(p) for p in pix_list])])
-    return sn.points[keep], C[keep], pix_list, offsets, sn.move_noise
+    return sn.points[keep], C[keep], pix_list, offsets, sn.move_noise, rim
 
 
 def _kept_neighbours(keys, ext, inverse, kept, cand):
@@ -469,7 +486,7 @@ def surface_points(views, P, C, pix_list, offsets, strides, cfg):
     ``surface="auto"`` measures the views' depth disagreement (``depth_agreement``) and runs
     the surface estimate when it is at least ``cfg.surface_auto_sigma``. Returns ``P``, ``C``,
     ``pix_list`` and ``offsets`` as ``_snap_and_filter`` does (unchanged when the estimate does not
-    run) and the ``SurfaceChoice``.
+    run), the ``SurfaceChoice`` and the rim flag of each returned point ((P,) bool, None: no rim voxel).
     """
     params = SurfaceParams(voxel_size=cfg.voxel_size, min_points=cfg.surface_min_points, min_depth=cfg.min_depth,
                            max_depth=cfg.max_depth)
@@ -477,6 +494,6 @@ def surface_points(views, P, C, pix_list, offsets, strides, cfg):
     if cfg.surface == "auto":
         sigma = depth_disagreement(views, strides, params.truncation, params.min_depth, params.max_depth).sigma
         if not sigma >= cfg.surface_auto_sigma:  # NaN (no overlap between views): nothing to agree on
-            return P, C, pix_list, offsets, SurfaceChoice("voxel-mean", sigma)
+            return P, C, pix_list, offsets, SurfaceChoice("voxel-mean", sigma), None
     out = _snap_and_filter(views, P, C, pix_list, offsets, strides, cfg, params)
-    return (*out[:4], SurfaceChoice("tsdf", sigma, out[4]))
+    return (*out[:4], SurfaceChoice("tsdf", sigma, out[4]), out[5])

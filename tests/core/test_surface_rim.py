@@ -1,4 +1,4 @@
-"""Rim fill of the surface estimate (``PointCloudConfig.surface_rim_neighbours``, issue 13)."""
+"""Rim voxels of the surface estimate (``PointCloudConfig.surface_rim_neighbours``, issue 13): the fusion."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from clutt3r_core.config import ADDITIONS, PRESETS, SegmentConfig
+from clutt3r_core.config import ADDED_AFTER_V1, ADDITIONS, PRESETS, SegmentConfig
 from clutt3r_core.errors import SceneError
 from clutt3r_core.pointcloud import PointCloudConfig, _group_keys, _voxel_keys, fuse_views
 from clutt3r_core.surface import _kept_neighbours
@@ -45,7 +45,8 @@ def test_rim_fill_only_adds_lone_voxels_next_to_the_surface():
     bordering a voxel of the cloud without the fill; every voxel of that cloud is kept unchanged."""
     views = _noisy(make_views(3, 320, 240, 400.0), 0.003)
     base = fuse_views(views, PointCloudConfig(surface="tsdf", surface_rim_neighbours=0))
-    fill = fuse_views(views, PointCloudConfig(surface="tsdf", surface_rim_neighbours=1))
+    fill = fuse_views(views, PointCloudConfig(surface="tsdf", surface_rim_neighbours=1, surface_rim_attach_k=0))
+    assert fill.rim is None and fill.surface.rim == 0  # joined the cloud
     vs = base.voxel_size
     kb = np.floor(base.points / vs).astype(np.int64)
     kf = np.floor(fill.points / vs).astype(np.int64)
@@ -60,15 +61,41 @@ def test_rim_fill_only_adds_lone_voxels_next_to_the_surface():
     offs = [(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1) if (a, b, c) != (0, 0, 0)]
     assert all(any(tuple(kf[i] + o) in bset for o in offs) for i in added)
     # a stricter neighbour count adds a subset
-    strict = fuse_views(views, PointCloudConfig(surface="tsdf", surface_rim_neighbours=6))
+    strict = fuse_views(views, PointCloudConfig(surface="tsdf", surface_rim_neighbours=6, surface_rim_attach_k=0))
     assert base.num <= strict.num <= fill.num
+    # kept apart (the default): the cloud is exactly the one without the fill, the rim the added voxels
+    apart = fuse_views(views, PointCloudConfig(surface="tsdf", surface_rim_neighbours=1))
+    for f in ("points", "colors", "normals", "counts", "visibility", "neighbours"):
+        np.testing.assert_array_equal(getattr(apart, f), getattr(base, f), err_msg=f)
+    for v in range(len(views)):
+        for a, b in zip(apart.pixel_voxel.pixels(v), base.pixel_voxel.pixels(v)):
+            np.testing.assert_array_equal(a, b)
+    assert apart.rim is not None and apart.rim.num == len(added) == apart.surface.rim
+    got = sorted(map(tuple, np.floor(apart.rim.points / vs).astype(np.int64)))
+    assert got == sorted(map(tuple, kf[added]))
+    np.testing.assert_allclose(np.linalg.norm(apart.rim.normals, axis=1), 1.0, atol=1e-5)
+    assert (apart.rim.counts == 1).all()
 
 
-def test_rim_fill_config_is_off_by_default():
-    """Off by default (it costs hard AP50 on the standard suite, docs/benchmark/strict-iou.md), so
-    neither preset nor the additions' ablation switches it; negative counts are refused."""
+def test_rim_config_defaults_and_ablation():
+    """On in ours (an addition: the paper preset and ``ours-no-rim-attach`` set 0), kept apart and
+    attached with k = 6 within 20 mm; a stored config older than the fields gets 0 / joined (as the
+    code that wrote it); bad values are refused."""
     with pytest.raises(SceneError, match="surface_rim_neighbours"):
         PointCloudConfig(surface_rim_neighbours=-1)
-    assert SegmentConfig().pointcloud.surface_rim_neighbours == 0
+    with pytest.raises(SceneError, match="surface_rim_attach"):
+        PointCloudConfig(surface_rim_attach_k=-1)
+    with pytest.raises(SceneError, match="surface_rim_attach"):
+        PointCloudConfig(surface_rim_attach_distance=float("nan"))
+    pc = SegmentConfig().pointcloud
+    assert (pc.surface_rim_neighbours, pc.surface_rim_attach_k, pc.surface_rim_attach_distance) == (1, 6, 0.02)
     assert PRESETS["paper"].pointcloud.surface_rim_neighbours == 0
-    assert all(f[0] != "pointcloud.surface_rim_neighbours" for a in ADDITIONS for f in a.fields)
+    assert ("pointcloud.surface_rim_neighbours", 1, 0) in {f for a in ADDITIONS for f in a.fields}
+    assert ADDED_AFTER_V1["pointcloud.surface_rim_attach_k"] == 0
+
+
+def test_clean_depth_has_no_rim():
+    """``auto`` leaves clean depth to the plain fusion: no rim voxels, the same cloud as before."""
+    views = make_views(3, 320, 240, 400.0)
+    cloud = fuse_views(views, PointCloudConfig())
+    assert cloud.surface.method == "voxel-mean" and cloud.rim is None and cloud.surface.rim == 0
