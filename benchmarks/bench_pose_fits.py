@@ -14,6 +14,17 @@ session 5).
   through this checkout's, alternating the order per problem; prints the CPU of each, their
   ratio, and the rotation / centroid differences of the poses, the stages and the IoU after.
 
+- ``gt --pairs DIR [--pairs DIR ...] --results NAME P.pkl [P.pkl ...] [--cfg LABEL=JSON ...] [--plane nx,ny,nz,d] [--oracle-rotation]``:
+  the recorded problems of ``bench_update.py``'s generated pairs (``DIR`` its ``--out``, ``NAME``
+  its results file there, e.g. ``results_hB.json``) re-fitted with each ``PoseConfig`` (JSON
+  fields; stage fields as ``{"coarse": {"lambda_reg_z": 0}}``), for the displaced object's main
+  instance of every pair where it was found, against the generator's true motion: rotation
+  (raw) and centroid errors, median / p90, for upright (true tilt < 5 deg) and tipped objects
+  (docs/update.md, session 5). ``--plane`` sets ``PoseProblem.support_plane`` where this
+  checkout has it; ``--oracle-rotation`` starts every fit from the true rotation about the
+  centroid (centroid on the mask's ray at its old height): what the translation would be if the
+  tilt were known.
+
 Run from the repository root: ``.venv/bin/python benchmarks/bench_pose_fits.py ...``. Pickles hold
 numpy arrays and the project's dataclasses; read only your own.
 """
@@ -124,6 +135,79 @@ def ab(base: Path, pickles: list[Path]) -> None:
                   f"stages {r[6]} / {r[7]}")
 
 
+def _err(T: np.ndarray, Tg: np.ndarray, c: np.ndarray) -> tuple[float, float]:
+    """(rotation error deg, centroid error cm) of the motion T against the true Tg."""
+    a = np.degrees(np.arccos(np.clip((np.trace(T[:3, :3] @ Tg[:3, :3].T) - 1) / 2, -1, 1)))
+    return float(a), float(np.linalg.norm(T[:3, :3] @ c + T[:3, 3] - Tg[:3, :3] @ c - Tg[:3, 3])) * 100
+
+
+def gt(pairs_dirs: list[Path], results: str, pickles: list[Path], cfgs: list[str], plane: str | None, oracle: bool) -> None:
+    import json
+    from dataclasses import fields, replace
+
+    from clutt3r_core.io.images import read_rgb
+    from clutt3r_core.update.pose import TorchPoseOptimizer, initial_translation, motion_matrix
+    from clutt3r_core.update.types import PoseConfig
+
+    def config(js: dict) -> PoseConfig:
+        base = PoseConfig()
+        kw = {k: (replace(getattr(base, k), **v) if isinstance(v, dict) else tuple(v) if isinstance(v, list) else v)
+              for k, v in js.items()}
+        return replace(base, **kw)
+
+    named = dict(c.split("=", 1) for c in cfgs) if cfgs else {"default": "{}"}
+    opts = {k: TorchPoseOptimizer(config(json.loads(v))) for k, v in named.items()}
+    probs = [pb for path in pickles for pb in pickle.loads(path.read_bytes())]
+    pl = None if plane is None else np.array([float(x) for x in plane.split(",")])
+    cpu = dict.fromkeys(opts, 0.0)
+    rows = []
+    todo = [(d, p) for d in pairs_dirs for p in json.loads((d / results).read_text())["pairs"]]
+    for pairs, p in todo:
+        if not p.get("displaced_found"):
+            continue
+        sc = pairs / p["scene"] / "scene"
+        inter = json.loads((sc / "gt/interaction.json").read_text())
+        Tg = np.array(inter["T_new_old"])
+        frames = json.loads((sc / "transforms.json").read_text())["frames"]
+        fr = [f for f in frames if f"{inter['post_frame']:06d}" in f["file_path"]]
+        st = p["statuses"]
+        st = eval(st) if isinstance(st, str) else st  # noqa: S307 - bench_update writes a repr
+        ids = [int(k) for k, v in st.items() if v[0] == "displaced" and v[1] == inter["displaced_object"]]
+        rgb = read_rgb(sc / fr[0]["file_path"]) if fr else None
+        cand = [pb for pb in probs if rgb is not None and pb.instance in ids and np.array_equal(pb.rgb, rgb)]
+        if not cand:
+            print(f"  {p['scene']}: no recorded problem of instances {ids}")
+            continue
+        pb = cand[0]
+        if pl is not None and any(f.name == "support_plane" for f in fields(pb)):
+            pb = replace(pb, support_plane=pl)
+        c = pb.points.astype(np.float64).mean(axis=0)
+        if oracle:
+            pb = replace(pb, T_init=motion_matrix(Tg[:3, :3], c, initial_translation(pb, c)))
+        row = [p["scene"], float(np.degrees(np.arccos(np.clip(Tg[2, 2], -1, 1))))]
+        for k, o in opts.items():
+            t0 = time.process_time()
+            T = o.optimize(pb).T_world
+            cpu[k] += time.process_time() - t0
+            row += [*_err(T, Tg, c), float((T[:3, :3] @ c + T[:3, 3] - c)[2]) * 100]
+        rows.append(row)
+        print(f"  {row[0]} tilt {row[1]:.1f}: " + "  ".join(
+            f"{k} {row[2 + 3 * j]:.1f} deg {row[3 + 3 * j]:.2f} cm" for j, k in enumerate(opts)), flush=True)
+    if not rows:
+        raise SystemExit("no pair with a recorded problem")
+    a = np.array([r[1:] for r in rows], float)
+    for name, m in (("upright (< 5 deg)", a[:, 0] < 5), ("tipped (>= 5 deg)", a[:, 0] >= 5)):
+        if not m.any():
+            continue
+        print(f"{name}: {int(m.sum())} objects")
+        for j, k in enumerate(opts):
+            r, t, dz = a[m, 1 + 3 * j], a[m, 2 + 3 * j], a[m, 3 + 3 * j]
+            print(f"  {k:16s} rotation median {np.median(r):6.1f} p90 {np.percentile(r, 90):6.1f} deg, "
+                  f"translation median {np.median(t):5.2f} p90 {np.percentile(t, 90):5.2f} cm, "
+                  f"fit centroid dz median {np.median(dz):+.2f} cm")
+    print("CPU s: " + ", ".join(f"{k} {v:.1f}" for k, v in cpu.items()))
+
+
 def main() -> None:
     argv = sys.argv[1:]
     rest: list[str] = []
@@ -141,11 +225,20 @@ def main() -> None:
     s3 = sub.add_parser("ab")
     s3.add_argument("--base", type=Path, required=True)
     s3.add_argument("pickles", type=Path, nargs="+")
+    s4 = sub.add_parser("gt")
+    s4.add_argument("--pairs", type=Path, action="append", required=True)
+    s4.add_argument("--results", required=True)
+    s4.add_argument("--cfg", action="append", default=[])
+    s4.add_argument("--plane")
+    s4.add_argument("--oracle-rotation", action="store_true")
+    s4.add_argument("pickles", type=Path, nargs="+")
     a = ap.parse_args(argv)
     if a.cmd == "record-seq1":
         record_seq1(a.run, a.out, a.scene)
     elif a.cmd == "record-bench":
         record_bench(a.out, rest)
+    elif a.cmd == "gt":
+        gt(a.pairs, a.results, a.pickles, a.cfg, a.plane, a.oracle_rotation)
     else:
         ab(a.base, a.pickles)
 
