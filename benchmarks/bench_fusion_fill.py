@@ -3,10 +3,13 @@
 How the third pass of docs/benchmark/strict-iou.md was measured (issue 13, part 2). Per scene and
 per value of ``PointCloudConfig.surface_rim_neighbours``: the fused cloud's *hole* (GT object cells
 of 10 mm with no fused point) and *off* (fused cells within two cells of an object where the GT has
-none), both per GT object cell; then ``segment`` with that config, ``evaluate_instances`` and the
-``error_breakdown``, exactly as ``evaluation.jobs.run_job``.
+none), both per GT object cell, counted with the rim voxels (``FusedCloud.rim``); then ``segment``
+with that config, ``evaluate_instances`` and the ``error_breakdown``, exactly as
+``evaluation.jobs.run_job``. The rim voxels are attached after the vote (the default) or, with
+``--join``, segmented with the cloud (``surface_rim_attach_k`` 0, the first measurement).
 
     .venv/bin/python benchmarks/bench_fusion_fill.py --seeds 2 3 --rim 0 1
+    .venv/bin/python benchmarks/bench_fusion_fill.py --seeds 2 3 --rim 0 1 --join
     .venv/bin/python benchmarks/bench_fusion_fill.py --seeds 0 1 --rim 0 1 --depth-noise none
 
 Scenes come from ``evaluation.runner.synth_suite`` (the standard suite's specs) and are cached
@@ -47,6 +50,7 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[2, 3])
     ap.add_argument("--difficulties", nargs="+", default=["easy", "intermediate", "hard"])
     ap.add_argument("--rim", type=int, nargs="+", default=[0, 1], help="surface_rim_neighbours values")
+    ap.add_argument("--join", action="store_true", help="rim voxels segmented with the cloud (attach_k 0)")
     ap.add_argument("--depth-noise", default="realsense")
     ap.add_argument("--cache", default="/tmp/bench_cache")
     args = ap.parse_args()
@@ -58,15 +62,17 @@ def main() -> None:
         scene = pickle.loads(_scene_file(args.cache, spec).read_bytes()).scene
         gt = scene.ground_truth
         for k in args.rim:
-            cfg = with_fields(SegmentConfig(), {"pointcloud.surface_rim_neighbours": k})
+            cfg = with_fields(SegmentConfig(), {"pointcloud.surface_rim_neighbours": k,
+                                                **({"pointcloud.surface_rim_attach_k": 0} if args.join else {})})
             t = time.process_time()
             cloud = fuse_views(scene.initial_views, cfg.pointcloud)
             t_fuse = time.process_time() - t
-            hole, off = cell_stats(cloud.points, gt)
+            pts = cloud.points if cloud.rim is None else np.concatenate([cloud.points, cloud.rim.points])
+            hole, off = cell_stats(pts, gt)
             seg = segment(scene, cfg, progress=False)
             res, _ = evaluate_instances(seg.points, seg.instance, seg.scores, gt)
             b = error_breakdown(seg.points, seg.instance, seg.scores, gt)
-            r = dict(scene=spec.name, rim=k, voxels=cloud.num, fuse_cpu_s=round(t_fuse, 2), hole=round(hole, 1),
+            r = dict(scene=spec.name, rim=k, voxels=len(pts), fuse_cpu_s=round(t_fuse, 2), hole=round(hole, 1),
                      off=round(off, 1), ap25=round(res.ap25, 1), ap50=round(res.ap50, 1), ap=round(res.ap, 1),
                      pred=res.num_pred, gt=res.num_gt, ceiling=round(b.ap_all_fixed, 1),
                      boundary_gain=round(b.gain("boundary"), 1))

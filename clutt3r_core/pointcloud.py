@@ -10,6 +10,9 @@ projecting anything again.
 
 Voxel order is the sorted order of the integer voxel keys, so it does not depend on the
 order of the views; voxel means do not either (up to float round-off).
+
+(About 530 lines: the config, the cloud type and the fusion share these invariants and are read
+together; the surface estimate and the rim voxels live in ``surface.py`` and ``rim.py``.)
 """
 
 from __future__ import annotations
@@ -21,8 +24,8 @@ from typing import TYPE_CHECKING, Literal, Sequence
 import numpy as np
 
 from clutt3r_core.errors import SceneError
-from clutt3r_core.normals import estimate_normals, knn_tree
-from clutt3r_core.rim import RimVoxels
+from clutt3r_core.normals import estimate_normals
+from clutt3r_core.rim import RimVoxels, rim_apart, split_rim
 from clutt3r_core.scene import View
 
 if TYPE_CHECKING:
@@ -97,16 +100,14 @@ class PointCloudConfig:
     ``clutt3r_core.rim``; measured in docs/benchmark/strict-iou.md, third pass)."""
 
     surface_rim_attach_k: int = 6
-    """Rim voxels are kept apart from the segmented cloud (``FusedCloud.rim``) and take the majority
-    label of this many nearest segmented voxels after the vote (``rim.attach_labels``); 0 = they join
-    the cloud before segmentation instead (ours, issue 13: joined, hard AP50 93.0 -> 90.3 on the
-    standard suite; attached with 6, AP +3.3 on tuning and held-out scenes, AP50 / AP25 never lower;
-    docs/benchmark/strict-iou.md)."""
+    """Rim voxels are kept apart (``FusedCloud.rim``) and take the majority label of this many nearest
+    segmented voxels after the vote (``rim.attach_labels``); 0 = they join the cloud before segmentation
+    (ours, issue 13, docs/benchmark/strict-iou.md: joined, hard AP50 93.0 -> 90.3 on the standard
+    suite; attached, AP +3.2 / +2.7 on tuning / held-out scenes, AP50 and AP25 never lower)."""
 
     surface_rim_attach_distance: float = 0.02
-    """Metres: segmented voxels farther than this from a rim voxel do not vote for its label (none
-    within: unlabelled). Ours: a rim voxel borders a kept voxel, so its nearest lies within two voxel
-    diagonals (17 mm at 5 mm); 20 mm keeps the voters on the rim's own surface, not across a gap."""
+    """Metres: segmented voxels farther than this from a rim voxel do not vote (none within: unlabelled).
+    Ours: a rim voxel borders a kept voxel, so its nearest lies within two voxel diagonals (17 mm)."""
 
     def __post_init__(self) -> None:
         if self.surface not in ("voxel-mean", "tsdf", "auto"):
@@ -462,12 +463,8 @@ def fuse_views(views: Sequence[View], cfg: PointCloudConfig = PointCloudConfig()
         if surface.method == "tsdf":
             min_points = 1
         if rim is not None and cfg.surface_rim_attach_k > 0:
-            # rim voxels (one point each) apart: the cloud below is the one without them (clutt3r_core.rim)
-            rim_pc = (P[rim], C[rim])
-            P, C = P[~rim], C[~rim]
-            pix_list = [pix[~rim[offsets[v] : offsets[v + 1]]] for v, pix in enumerate(pix_list)]
-            offsets = np.concatenate([[0], np.cumsum([len(p) for p in pix_list])])
-            surface = replace(surface, rim=len(rim_pc[0]))
+            # rim voxels apart: the cloud below is the one without them (clutt3r_core.rim)
+            P, C, pix_list, offsets, rim_pc = split_rim(P, C, pix_list, offsets, rim)
         del rim
 
     # Integer voxel keys packed into one int64, then grouped.
@@ -515,13 +512,9 @@ def fuse_views(views: Sequence[View], cfg: PointCloudConfig = PointCloudConfig()
         cam_mean = (vis.T.astype(np.float64) @ centres) / np.maximum(nvis, 1)[:, None]
         flip = np.einsum("ij,ij->i", normals, cam_mean - mean) < 0
         normals[flip] *= -1.0
-    rim_voxels = None
-    if rim_pc is not None and n:
-        near = knn_tree(mean).query(rim_pc[0].astype(np.float64), k=1)[1].reshape(-1)
-        rim_voxels = RimVoxels(rim_pc[0], rim_pc[1], normals[near].astype(np.float32),
-                               np.ones(len(near), np.int32))
-    elif rim_pc is not None:  # no cloud voxel (cannot happen: a rim voxel borders kept ones)
-        surface = replace(surface, rim=0)
+    rim_voxels = rim_apart(*rim_pc, mean, normals) if rim_pc is not None else None
+    if rim_voxels is not None:
+        surface = replace(surface, rim=rim_voxels.num)
 
     return FusedCloud(
         points=mean.astype(np.float32),

@@ -20,7 +20,7 @@ import numpy as np
 
 from clutt3r_core.errors import SceneError
 
-__all__ = ["RimVoxels", "Attached", "attach_labels"]
+__all__ = ["RimVoxels", "Attached", "attach_labels", "split_rim", "rim_apart"]
 
 
 def _readonly(a: np.ndarray) -> np.ndarray:
@@ -66,6 +66,30 @@ class RimVoxels:
     @property
     def num(self) -> int:
         return int(self.points.shape[0])
+
+
+def split_rim(P, C, pix_list, offsets, rim):
+    """The fusion's raw points without the rim points, and the rim points apart.
+
+    P (P, 3) float32 world metres, C (P, 3) uint8, ``pix_list[v]`` the flat pixel indices of view v's
+    points, ``offsets`` (V + 1,), ``rim`` (P,) bool (a rim voxel holds one point: a rim point is a
+    rim voxel). Returns P, C, pix_list, offsets without them (a rim point feeds no pixel of the
+    segmented cloud) and (rim points (R, 3), their colours (R, 3))."""
+    pix_list = [pix[~rim[offsets[v] : offsets[v + 1]]] for v, pix in enumerate(pix_list)]
+    offsets = np.concatenate([[0], np.cumsum([len(p) for p in pix_list])])
+    return P[~rim], C[~rim], pix_list, offsets, (P[rim], C[rim])
+
+
+def rim_apart(points: np.ndarray, colors: np.ndarray, cloud_points: np.ndarray,
+              cloud_normals: np.ndarray) -> RimVoxels | None:
+    """``RimVoxels`` of rim points (R, 3) / colours (R, 3), each with the normal of the nearest cloud
+    voxel (``cloud_points`` (N, 3), ``cloud_normals`` (N, 3)); None without a cloud voxel."""
+    if len(cloud_points) == 0 or len(points) == 0:
+        return None
+    from clutt3r_core.normals import knn_tree
+
+    near = knn_tree(cloud_points).query(np.asarray(points, np.float64), k=1)[1].reshape(-1)
+    return RimVoxels(points, colors, np.asarray(cloud_normals, np.float32)[near], np.ones(len(near), np.int32))
 
 
 @dataclass(frozen=True, eq=False)

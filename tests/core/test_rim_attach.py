@@ -84,7 +84,7 @@ def test_attach_properties(seed, n, r, k, dmax):
         assert att.source[i] in voters and lab[att.source[i]] == att.label[i]
 
 
-def test_pipeline_attaches_the_rim_after_the_vote():
+def test_pipeline_attaches_the_rim_after_the_vote(tmp_path):
     """A tiny generated scene with RealSense-like depth: the segmentation with the rim attached is the
     one without it (same instances, scores, labels of every segmented voxel) plus the rim voxels at the
     end, each labelled as attach_labels says, in the super-voxel of its source; the trace records them."""
@@ -110,3 +110,12 @@ def test_pipeline_attaches_the_rim_after_the_vote():
     assert on.trace.timing("attach") > 0
     # some rim voxels join objects (the gain is on object rims, not only the unlabelled table)
     assert (on.instance[n:] >= 0).any()
+    # the run files hold the one cloud, and the trace the count of attached points
+    from clutt3r_core.runs import load_run, save_run
+
+    save_run(on, tmp_path / "run")
+    back = load_run(tmp_path / "run")
+    np.testing.assert_array_equal(back.points, on.points)
+    np.testing.assert_array_equal(back.instance, on.instance)
+    np.testing.assert_array_equal(back.sv_labels, on.sv_labels)
+    assert back.trace.surface.rim == r
