@@ -233,24 +233,6 @@ class _Solver:
         self.yaw_mask = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
         self.full_mask = torch.ones(3, dtype=torch.float64)
         self.rot_mask = self.full_mask if cfg.dof == "se3" else self.yaw_mask
-        # support contact: the stored points miss the object's bottom (unseen, and the band
-        # just above the plane goes to the support in the segmentation: lowest stored points
-        # 0-2.8 cm above it on the tuning pairs), so the object is taken to fill down to the
-        # plane: each subsampled point and its foot on the plane move rigidly, and the soft-min
-        # height of both keeps its stored value (the feet: ~0, the object touches the plane)
-        self.contact = None
-        pl = getattr(pb, "support_plane", None)
-        if pl is not None and (cfg.lambda_contact > 0 or cfg.contact_hard):
-            n = np.asarray(pl[:3], np.float64)
-            q = pb.points[sub].astype(np.float64)
-            h = q @ n + float(pl[3])
-            if h.min() <= cfg.contact_max_gap:
-                if cfg.contact_fill:
-                    q = np.concatenate([q, q - h[:, None] * n])
-                    h = np.concatenate([h, 0.0 * h])
-                q = q @ self.T_init[:3, :3].T + self.T_init[:3, 3] - self.c  # the solver's frame
-                h0 = -cfg.contact_tau * np.logaddexp.reduce(-h / cfg.contact_tau)
-                self.contact = (torch.tensor(q), torch.tensor(n), float(pl[3]), float(h0))
 
     # -- geometry ------------------------------------------------------------------------
     # Parameters are (B, 3) tensors, one row per yaw start: the probe evaluates its B starts in
@@ -290,7 +272,7 @@ class _Solver:
         """The motion of row ``row`` of ``params``, whose rotations ``R`` (B, 3, 3) the loss just
         computed (``last_R``: the same values as computing them again)."""
         with self.torch.no_grad():
-            return motion_matrix(R[row].detach().numpy(), self.c, self.last_t[row].detach().numpy()) @ self.T_init
+            return motion_matrix(R[row].detach().numpy(), self.c, params["t"][row].numpy()) @ self.T_init
 
     def _seg_mean(self, x, seg: np.ndarray, counts: np.ndarray):
         """(B,) mean of ``x`` (K,) per row ``seg`` (K,) int64 (rows ``counts`` (B,), 0 -> 0)."""
@@ -308,16 +290,7 @@ class _Solver:
         R = self.rotation(self.rotvec(params))
         self.last_R = R
         B, N = R.shape[0], len(self.p)
-        t = params["t"]
-        if self.contact is not None and cfg.contact_hard:
-            # the motion along the plane normal is not a parameter: it puts the rotated object's
-            # soft-min height back at its stored value (tilting lifts or lowers it as it must)
-            q, n, d, h0 = self.contact
-            hq = (q @ R.transpose(1, 2) + self.c_t) @ n + d
-            lowest = -cfg.contact_tau * torch.logsumexp(-hq / cfg.contact_tau, dim=1)
-            t = t - (t @ n)[:, None] * n + (h0 - lowest)[:, None] * n
-        self.last_t = t
-        pw = self.p @ R.transpose(1, 2) + (self.c_t + t)[:, None, :]
+        pw = self.p @ R.transpose(1, 2) + (self.c_t + params["t"])[:, None, :]
         pc = pw @ self.Rcw.T + self.tcw
         z = pc[..., 2:].clamp(min=1e-3)
         uv = (pc[..., :2] / z * self.f_uv + self.c_uv).reshape(B * N, 2)
@@ -394,11 +367,6 @@ class _Solver:
             depth_term = self._seg_mean(hub, np.repeat(np.arange(B), n_d), n_d)
         total = (stage.lambda_chamfer * chamfer + stage.lambda_photo * photo + stage.lambda_reg_z * reg_z
                  + (cfg.lambda_depth * depth_term if self.depth is not None else 0.0))
-        if self.contact is not None and not cfg.contact_hard:
-            q, n, d, h0 = self.contact
-            h = (q @ R.transpose(1, 2) + (self.c_t + params["t"])[:, None, :]) @ n + d  # (B, 2N) heights
-            lowest = -cfg.contact_tau * torch.logsumexp(-h / cfg.contact_tau, dim=1)
-            total = total + cfg.lambda_contact * ((lowest - h0) / cfg.contact_sigma) ** 2
         return total, (chamfer, photo, reg_z, depth_term)
 
     def iou(self, T: np.ndarray) -> float:

@@ -139,29 +139,6 @@ class PoseConfig:
     placement score's photometric factor)."""
     registration_yaw_step_deg: float = 30.0
     """Ours: start yaws of the depth registration (with the six up-axis placements)."""
-    lambda_contact: float = 0.0
-    """Ours, support contact (RGB-only fits with ``PoseProblem.support_plane``): weight of
-    ``((h(moved) - h(stored)) / contact_sigma)^2``, h = soft-min (temperature ``contact_tau``)
-    of the points' signed heights above the support plane: an object that rested on the plane
-    still touches it after the move, also when it tipped (``pose.py``). 0 = off (default; the
-    measurement is in docs/update.md, session 5: support contact)."""
-    contact_sigma: float = 0.005
-    """Ours, metres: the contact term's scale (5 mm of gap or sinking costs lambda_contact)."""
-    contact_tau: float = 0.002
-    """Ours, metres: soft-min temperature of the lowest height (2 mm: smooth over the few
-    lowest points, so the gradient is not one point's)."""
-    contact_fill: bool = True
-    """Ours: the contact term takes the object to fill down to the plane (each point's foot on the
-    plane moves with it), since the stored points miss the bottom; False keeps the stored points'
-    own lowest height instead."""
-    contact_hard: bool = False
-    """Ours: the contact as a constraint instead of a penalty: the motion along the plane normal
-    is computed from the rotation (the soft-min height kept exactly), so a tilt is not fought
-    by the penalty on the way (measured: the penalty keeps a tipped box upright)."""
-    contact_max_gap: float = 0.03
-    """Ours, metres: the term applies only to an instance whose stored lowest height is within
-    this of the plane (resting on it: the lowest stored points were 0-2.8 cm above it on the
-    tuning pairs; one stacked on another object is left to L_reg,z)."""
 
     def __post_init__(self) -> None:
         if not 0.0 < self.tau_iou <= 1.0:
@@ -505,9 +482,6 @@ class PoseProblem:
     T_init: np.ndarray | None = None
     """(4, 4) motion to start from (ours: the depth registration), None = the paper's start
     (the mask's viewing ray, yaw hypotheses)."""
-    support_plane: np.ndarray | None = None
-    """(4,) [nx, ny, nz, d] world support plane (unit normal, metres; the objects on its positive
-    side), for ``PoseConfig.lambda_contact``; None = no contact term."""
 
     def __post_init__(self) -> None:
         H, W = self.camera.height, self.camera.width
@@ -538,11 +512,6 @@ class PoseProblem:
             object.__setattr__(self, "depth", _ro(d))
         if not self.voxel_size > 0:
             raise SceneError(f"instance {self.instance}: voxel_size must be > 0")
-        if self.support_plane is not None:
-            pl = np.asarray(self.support_plane, np.float64)
-            if pl.shape != (4,) or not np.all(np.isfinite(pl)) or abs(np.linalg.norm(pl[:3]) - 1.0) > 1e-3:
-                raise SceneError(f"instance {self.instance}: support_plane must be a finite (4,) [n, d] with |n| = 1")
-            object.__setattr__(self, "support_plane", _ro(pl))
 
 
 @dataclass(frozen=True, eq=False)
