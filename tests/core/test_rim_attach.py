@@ -29,7 +29,7 @@ def test_attach_majority_of_the_k_nearest():
 def test_attach_ties_go_to_the_nearest_voter():
     pts = np.array([[0.0, 0, 0], [0.01, 0, 0], [0.02, 0, 0], [0.03, 0, 0]])
     lab = np.array([5, 7, 7, 5])
-    # k = 2 around x = 0.014: nearest 1 (label 7), then 2 (label 7 ... no: 0.006) -> use k = 4, 2 votes each
+    # k = 4: every point votes, 5 and 7 two votes each; the label of the nearest point wins
     att = attach_labels(pts, lab, np.array([[0.014, 0, 0], [0.016, 0, 0], [0.004, 0, 0]]), k=4, max_distance=1.0)
     assert att.label.tolist() == [7, 7, 5]
     assert att.source.tolist() == [1, 2, 0]
