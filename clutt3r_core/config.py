@@ -126,6 +126,8 @@ ADDITIONS: tuple[Addition, ...] = (
     Addition("rim-attach", "with the surface estimate, lone unmoved points next to kept voxels (object rims) are kept "
              "apart and take the majority label of their 6 nearest segmented voxels after the vote",
              (("pointcloud.surface_rim_neighbours", 1, 0),)),
+    Addition("table-contact", "object points less than 2 mm above the support plane are left unlabelled after the vote",
+             (("refine.contact_height", 0.002, 0.0),)),
 )
 """Every rule of ours over the paper's explicit text that changes a result, with its switch.
 Choices the text leaves open (and that both presets share) are listed in docs/paper_choices.md."""
@@ -209,6 +211,7 @@ ADDED_AFTER_V1: dict[str, Any] = {
     "vote.revote_dropped": False,
     "refine.min_won_fraction": 0.0,
     "refine.weak_echo_ratio": 0.0,
+    "refine.contact_height": 0.0,
     "grouping.duplicate_iou": 0.0,
     "pointcloud.surface": "voxel-mean",
     "pointcloud.surface_min_points": 2,

@@ -36,7 +36,7 @@ from clutt3r_core.segmentation.grouping import (
     semantic_similarity,
     spatial_similarity,
 )
-from clutt3r_core.segmentation.refine import absorb_fragments, weak_echoes
+from clutt3r_core.segmentation.refine import absorb_fragments, table_contact, weak_echoes
 from clutt3r_core.segmentation.trace import StageClock, StageTiming, Trace
 from clutt3r_core.segmentation.trees import InstanceTree, build_tree_overlaps
 from clutt3r_core.segmentation.vote import supervoxel_vote
@@ -276,6 +276,8 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
             sv_labels = np.concatenate([sv.labels, sv.labels[att.source]])
             points, colors = np.concatenate([points, rim.points]), np.concatenate([colors, rim.colors])
             normals, counts = np.concatenate([normals, rim.normals]), np.concatenate([counts, rim.counts])
+    # ours (issue 13): object points at the table contact left unlabelled (``refine.table_contact``)
+    instance = np.where(table_contact(points, instance, sv.plane, config.refine.contact_height), -1, instance)
     tick("done")
     if bar is not None:
         bar.close()
