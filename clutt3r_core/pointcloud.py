@@ -454,21 +454,32 @@ def fuse_views(views: Sequence[View], cfg: PointCloudConfig = PointCloudConfig()
     C = np.concatenate(col_list)
     col_list.clear()
     min_points = cfg.min_points
-    surface = rim_pc = None
+    surface = rim_pc = grouped = None
     if cfg.surface != "voxel-mean":  # ours (issue 13): raw points moved onto the views' consensus surface
         from clutt3r_core.surface import surface_points
 
-        # it drops the points of voxels that fail its own occupancy rule (clutt3r_core.surface)
-        P, C, pix_list, offsets, surface, rim = surface_points(views, P, C, pix_list, offsets, strides, cfg)
+        # it drops the points of voxels that fail its own occupancy rule (clutt3r_core.surface), and
+        # gives the voxel of each point it returns (it grouped them)
+        P, C, pix_list, offsets, surface, rim, grouped = surface_points(views, P, C, pix_list, offsets, strides, cfg)
         if surface.method == "tsdf":
             min_points = 1
         if rim is not None and cfg.surface_rim_attach_k > 0:
             # rim voxels apart: the cloud below is the one without them (clutt3r_core.rim)
             P, C, pix_list, offsets, rim_pc = split_rim(P, C, pix_list, offsets, rim)
+            if grouped is not None:
+                grouped = np.compress(~rim, grouped)
         del rim
 
     # Integer voxel keys packed into one int64, then grouped.
-    if len(P):
+    if len(P) and grouped is not None:
+        # the surface estimate's voxels of these points (the same keys, so the same voxels in the
+        # same order), renumbered without those left empty (rim voxels set apart)
+        counts = np.bincount(grouped)
+        present = counts > 0
+        inverse = (np.cumsum(present, dtype=np.int32) - np.int32(1))[grouped]
+        counts = counts[present]
+        del grouped, present
+    elif len(P):
         keys, _, ext = _voxel_keys(P, cfg.voxel_size)
         inverse, counts = _group_keys(keys, ext)
         del keys

@@ -40,6 +40,26 @@ def test_kept_neighbours_counts_the_26_neighbourhood(seed, n, frac):
     assert got.tolist() == want
 
 
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(1, 400), st.floats(0.0, 1.0), st.integers(1, 4))
+def test_kept_neighbours_grid_and_search_agree(seed, n, frac, cells):
+    """The dense-grid lookups (the usual path) and the binary searches (scenes too large for the grid)
+    count the same neighbours, candidates in any order and repeated."""
+    import clutt3r_core.pointcloud as pc
+
+    rng = np.random.default_rng(seed)
+    P = (rng.integers(0, 12, (n, 3)) * 0.005 + rng.uniform(0, 0.005, (n, 3))).astype(np.float32)
+    keys, _, ext = _voxel_keys(P, 0.005, pad=1)
+    inverse, counts = _group_keys(keys, ext)
+    kept = rng.random(len(counts)) < frac
+    cand = rng.integers(0, len(counts), 2 * len(counts))
+    grid = _kept_neighbours(keys, ext, inverse, kept, cand)
+    with pytest.MonkeyPatch.context() as mp:  # grids of at most 1-4 cells: the search path
+        mp.setattr(pc, "_DENSE_GRID_CELLS", cells)
+        search = _kept_neighbours(keys, ext, inverse, kept, cand)
+    assert grid.dtype == search.dtype and grid.tolist() == search.tolist()
+
+
 def test_rim_fill_only_adds_lone_voxels_next_to_the_surface():
     """With noisy depth the fill adds voxels (the box's rims), each holding one raw point and
     bordering a voxel of the cloud without the fill; every voxel of that cloud is kept unchanged."""
