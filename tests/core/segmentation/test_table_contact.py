@@ -79,3 +79,17 @@ def test_pipeline_unlabels_only_the_contact():
     cfg = SegmentConfig()
     plane = build_supervoxels(fuse_views(scene.initial_views, cfg.pointcloud), cfg.supervoxels).plane
     assert np.array_equal(changed, table_contact(off.points, off.instance, plane, 0.002))
+
+
+def test_clean_depth_is_left_alone():
+    from clutt3r_core.config import SegmentConfig, with_fields
+    from clutt3r_core.pipeline import segment
+    from tests.core.test_pipeline import small_scene
+
+    # clean depth: the fusion keeps the plain voxels (no surface estimate), so the rule does not run,
+    # even forced high enough to reach the objects' lowest points (2.3 mm above the plane, measured)
+    scene = small_scene(0)
+    hi = segment(scene, with_fields(SegmentConfig(), {"refine.contact_height": 0.03}))
+    assert hi.trace.surface.method == "voxel-mean"
+    off = segment(scene, with_fields(SegmentConfig(), {"refine.contact_height": 0.0}))
+    assert np.array_equal(hi.instance, off.instance)
