@@ -71,7 +71,7 @@ class RefineConfig:
     the super-voxels and rim voxels that straddle the contact hand table to the object. Measured
     with RealSense-like depth (mean of 6 scenes, AP25 / AP50 unchanged, no scene lower): AP
     51.7 -> 53.2 on tuning seeds 2-3, 53.6 -> 54.8 on held-out seeds 0-1; 3 mm gained less on
-    both (53.0, 54.4), 4-6 mm lost easy_0003 (49.4 -> 45.6). Applied only where the fusion ran the
+    both (53.0, 54.4), 4-6 mm lost easy_0003 (49.4 -> 47.8-45.6). Applied only where the fusion ran the
     surface estimate (noisy depth, ``pointcloud.surface`` "auto" decides): on clean depth the thin
     cloud's lowest points are the object's, and easy_0000 lost an object at IoU 0.5 (AP50 100 ->
     83.3, AP 69.7 -> 66.7). docs/benchmark/strict-iou.md, fourth pass."""
