@@ -11,8 +11,8 @@ projecting anything again.
 Voxel order is the sorted order of the integer voxel keys, so it does not depend on the
 order of the views; voxel means do not either (up to float round-off).
 
-(About 530 lines: the config, the cloud type and the fusion share these invariants and are read
-together; the surface estimate and the rim voxels live in ``surface.py`` and ``rim.py``.)
+(About 545 lines, on purpose: the config, the cloud type and the fusion share these invariants
+and are read together; the surface estimate and the rim voxels live in ``surface.py`` and ``rim.py``.)
 """
 
 from __future__ import annotations

@@ -43,6 +43,9 @@ default): ``depth_agreement.depth_disagreement`` measures how much the views dis
 estimate runs from ``PointCloudConfig.surface_auto_sigma`` (1 mm) on; ``surface_points`` is the
 fusion's hook and returns a ``SurfaceChoice`` with what was measured and done.
 
+(About 550 lines, on purpose: the field, the snap and the keep rule above are one algorithm
+whose steps share the candidate-voxel tables; split apart they would pass those tables around.)
+
 Free-space carving (dropping voxels that other views see through) was tried and measured no
 gain on generated scenes (docs/benchmark/strict-iou.md); on clean depth it removed true surface
 seen at grazing angles, whose projective distance exceeds the truncation. It is not done.
