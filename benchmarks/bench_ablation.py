@@ -109,7 +109,12 @@ def main() -> None:
     agreement: dict[str, dict[str, float]] = {}
     seconds = {}
     n_cached = 0
-    with ProcessPoolExecutor(max_workers=max(1, a.workers)) as pool:
+    import multiprocessing as mp
+
+    # spawn, not fork: the jobs above ran in this process, and a forked child inherits pykdtree's
+    # OpenMP (libgomp) state without its threads, so its first parallel k-NN query waits forever
+    # (seen: the ablation hung in rim_apart's query after a --workers 1 run)
+    with ProcessPoolExecutor(max_workers=max(1, a.workers), mp_context=mp.get_context("spawn")) as pool:
         for m, s, f1, sec, hit in pool.map(_agreement, todo):
             agreement.setdefault(m, {})[s] = f1
             seconds[f"{m}/{s}"] = sec
