@@ -207,9 +207,7 @@ def _search_regions(state, view: View, config: UpdateConfig, left: list[int], mo
     cam, depth, voxel = view.camera, view.depth, state.voxel_size
     still = np.array([k for k in state.instance_ids if int(k) not in moved] + [-1], np.int32)
     expl = explained_pixels(state.points, state.instance, still, cam, depth, voxel, cc.in_place_tol)
-    for k, f in fits.items():
-        T = f.registration.T_world
-        q = state.points[state.instance == k].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+    for q in taken:  # the accepted fits' moved points (depth_changes appends one per fit)
         expl |= explained_pixels(q, np.zeros(len(q), np.int32), np.zeros(1, np.int32), cam, depth, voxel,
                                  cc.in_place_tol)
     plane = support_plane(state.points[state.instance < 0], state.points[state.instance >= 0], cc.in_place_tol)
