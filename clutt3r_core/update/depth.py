@@ -190,7 +190,8 @@ def unexplained_regions(camera: Camera, depth: np.ndarray, explained: np.ndarray
         if sizes[c] < min_pixels:
             break
         m = np.zeros(depth.shape, bool)
-        m[vs[lab == c], us[lab == c]] = True
+        sel = lab == c
+        m[vs[sel], us[sel]] = True
         out.append(m)
     return out
 
