@@ -426,6 +426,16 @@ def _group_keys(keys: list[np.ndarray], ext: np.ndarray) -> tuple[np.ndarray, np
     return inverse.reshape(-1).astype(np.int32), counts
 
 
+def _keep_points(P, C, pix_list, offsets, keep):
+    """The fusion's raw points ``P`` (P, 3), colours ``C`` (P, 3), per-view flat pixel indices
+    ``pix_list`` and ``offsets`` (V + 1,) with only the points where ``keep`` (P,) bool is true
+    (the surface estimate's occupancy rule, the rim voxels set apart)."""
+    pix_list = [pix[keep[offsets[v] : offsets[v + 1]]] for v, pix in enumerate(pix_list)]
+    offsets = np.concatenate([[0], np.cumsum([len(p) for p in pix_list])])
+    # np.compress: the rows a boolean index picks, about 4x faster on (P, 3) arrays (issue 13)
+    return np.compress(keep, P, axis=0), np.compress(keep, C, axis=0), pix_list, offsets
+
+
 def fuse_views(views: Sequence[View], cfg: PointCloudConfig = PointCloudConfig()) -> FusedCloud:
     """Back-project and fuse ``views`` into one voxel cloud (Sec. III-A, Sec. IV).
 
