@@ -388,16 +388,17 @@ class _Solver:
         w[:, 2] = yaws
         r = torch.tensor(w, dtype=torch.float64, requires_grad=True)
         params = {"w": r, "t": t}
-        opt = _Adam(torch, [{"params": [r], "lr": self.cfg.lr_rotation},
-                            {"params": [t], "lr": self.cfg.lr_translation}])
-        return params, opt
+        return params, self._adam(params)
+
+    def _adam(self, params) -> _Adam:
+        """A fresh Adam over ``params``' rotation and translation, at their base learning rates."""
+        return _Adam(self.torch, [{"params": [params["w"]], "lr": self.cfg.lr_rotation},
+                                  {"params": [params["t"]], "lr": self.cfg.lr_translation}])
 
     def keep_row(self, params, opt, row: int):
         """The parameters and Adam state of one row (the probe's best start), as a batch of one."""
-        torch = self.torch
         new = {k: v.detach()[row : row + 1].clone().requires_grad_(True) for k, v in params.items()}
-        opt2 = _Adam(torch, [{"params": [new["w"]], "lr": self.cfg.lr_rotation},
-                             {"params": [new["t"]], "lr": self.cfg.lr_translation}])
+        opt2 = self._adam(new)
         for k in ("w", "t"):
             st = opt.state.get(id(params[k]))
             if st is not None:
