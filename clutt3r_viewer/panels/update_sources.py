@@ -22,6 +22,7 @@ Importing this module registers:
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +31,6 @@ from clutt3r_core.errors import Clutt3rError
 from clutt3r_core.scene import Scene
 from clutt3r_core.update import InstanceUpdate, PoseResult, UpdateFrame, UpdateResult
 from clutt3r_core.update.state import load_pose_traces, state_dirs
-from dataclasses import dataclass
 
 from clutt3r_viewer.data import label_colors
 from clutt3r_viewer.events import PoseIterations, register_event_source
