@@ -170,9 +170,7 @@ def gt(pairs_dirs: list[Path], results: str, pickles: list[Path], cfgs: list[str
         Tg = np.array(inter["T_new_old"])
         frames = json.loads((sc / "transforms.json").read_text())["frames"]
         fr = [f for f in frames if f"{inter['post_frame']:06d}" in f["file_path"]]
-        st = p["statuses"]
-        st = eval(st) if isinstance(st, str) else st  # noqa: S307 - bench_update writes a repr
-        ids = [int(k) for k, v in st.items() if v[0] == "displaced" and v[1] == inter["displaced_object"]]
+        ids = [int(k) for k, v in p["statuses"].items() if v[0] == "displaced" and v[1] == inter["displaced_object"]]
         rgb = read_rgb(sc / fr[0]["file_path"]) if fr else None
         cand = [pb for pb in probs if rgb is not None and pb.instance in ids and np.array_equal(pb.rgb, rgb)]
         if not cand:
