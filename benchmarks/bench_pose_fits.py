@@ -95,6 +95,12 @@ def _load(name: str, path: Path):
     return mod
 
 
+def _err(T: np.ndarray, Tg: np.ndarray, c: np.ndarray) -> tuple[float, float]:
+    """(rotation error deg, centroid error cm) of the motion T against Tg (the true motion, or another fit's)."""
+    a = np.degrees(np.arccos(np.clip((np.trace(T[:3, :3] @ Tg[:3, :3].T) - 1) / 2, -1, 1)))
+    return float(a), float(np.linalg.norm(T[:3, :3] @ c + T[:3, 3] - Tg[:3, :3] @ c - Tg[:3, 3])) * 100
+
+
 def ab(base: Path, pickles: list[Path]) -> None:
     from clutt3r_core.update import pose as new
     from clutt3r_core.update.types import PoseConfig
@@ -115,9 +121,7 @@ def ab(base: Path, pickles: list[Path]) -> None:
                 cpu[name] += time.process_time() - c
             i += 1
             Ta, Tb = res["base"].T_world, res["this"].T_world
-            dR = float(np.degrees(np.arccos(np.clip((np.trace(Ta[:3, :3].T @ Tb[:3, :3]) - 1) / 2, -1, 1))))
-            c0 = pb.points.astype(np.float64).mean(axis=0)
-            dt = float(np.linalg.norm((Ta[:3, :3] @ c0 + Ta[:3, 3]) - (Tb[:3, :3] @ c0 + Tb[:3, 3]))) * 100
+            dR, dt = _err(Ta, Tb, pb.points.astype(np.float64).mean(axis=0))
             rows.append((path.name, pb.instance, dR, dt, res["base"].iou_after, res["this"].iou_after,
                          res["base"].stages, res["this"].stages, bool(np.array_equal(Ta, Tb))))
     if not rows:
@@ -133,12 +137,6 @@ def ab(base: Path, pickles: list[Path]) -> None:
         if r[2] > 0.5 or r[3] > 0.2 or r[6] != r[7] or (r[4] >= 0.5) != (r[5] >= 0.5):
             print(f"  {r[0]} instance {r[1]}: {r[2]:.2f} deg, {r[3]:.2f} cm, IoU after {r[4]:.3f} / {r[5]:.3f}, "
                   f"stages {r[6]} / {r[7]}")
-
-
-def _err(T: np.ndarray, Tg: np.ndarray, c: np.ndarray) -> tuple[float, float]:
-    """(rotation error deg, centroid error cm) of the motion T against the true Tg."""
-    a = np.degrees(np.arccos(np.clip((np.trace(T[:3, :3] @ Tg[:3, :3].T) - 1) / 2, -1, 1)))
-    return float(a), float(np.linalg.norm(T[:3, :3] @ c + T[:3, 3] - Tg[:3, :3] @ c - Tg[:3, 3])) * 100
 
 
 def gt(pairs_dirs: list[Path], results: str, pickles: list[Path], cfgs: list[str], plane: str | None, oracle: bool) -> None:
