@@ -86,9 +86,9 @@ def rim_apart(points: np.ndarray, colors: np.ndarray, cloud_points: np.ndarray,
     voxel (``cloud_points`` (N, 3), ``cloud_normals`` (N, 3)); None without a cloud voxel."""
     if len(cloud_points) == 0 or len(points) == 0:
         return None
-    from clutt3r_core.normals import knn_tree
+    from clutt3r_core.normals import knn_query, knn_tree
 
-    near = knn_tree(cloud_points).query(np.asarray(points, np.float64), k=1)[1].reshape(-1)
+    near = knn_query(knn_tree(cloud_points), points, 1)[1].reshape(-1)
     return RimVoxels(points, colors, np.asarray(cloud_normals, np.float32)[near], np.ones(len(near), np.int32))
 
 
