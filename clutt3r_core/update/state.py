@@ -170,8 +170,8 @@ def state_from_segmentation(seg, voxel_size: float = 0.005, run: Path | None = N
     # 0.02-0.05 lower and the moved clamp was reported static; without them the update is the
     # one of the cloud without rim voxels (identical results). The viewer still moves them with
     # their instance (it reads the run's points).
-    surface = getattr(seg.trace, "surface", None)
-    n = len(seg.points) - int(getattr(surface, "rim", 0) or 0)
+    surface = seg.trace.surface  # Trace.surface: None with the voxel-mean fusion and in older traces
+    n = len(seg.points) - (surface.rim if surface is not None else 0)
     return SceneState(points=seg.points[:n], colors=seg.colors[:n], instance=seg.instance[:n],
                       instance_ids=np.arange(k, dtype=np.int32), embeddings=emb,
                       embedder=seg.trace.embedder, voxel_size=voxel_size, run=run)
