@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import pickle
 import time
 
 import numpy as np
@@ -29,7 +28,7 @@ from scipy.spatial import cKDTree
 from clutt3r_core.config import SegmentConfig, with_fields
 from clutt3r_core.evaluation.breakdown import error_breakdown
 from clutt3r_core.evaluation.metrics import evaluate_instances, voxelize_labels
-from clutt3r_core.evaluation.runner import _scene_file, prepare_scene, synth_suite
+from clutt3r_core.evaluation.runner import _load_prepared, synth_suite
 from clutt3r_core.pipeline import segment
 from clutt3r_core.pointcloud import fuse_views
 
@@ -58,8 +57,7 @@ def main() -> None:
              if int(s.name[-4:]) in args.seeds]
     rows = {k: [] for k in args.rim}
     for spec in specs:
-        prepare_scene((spec, args.cache))
-        scene = pickle.loads(_scene_file(args.cache, spec).read_bytes()).scene
+        scene = _load_prepared(args.cache, spec).scene  # generated into the cache when missing
         gt = scene.ground_truth
         for k in args.rim:
             cfg = with_fields(SegmentConfig(), {"pointcloud.surface_rim_neighbours": k,

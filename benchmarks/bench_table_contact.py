@@ -16,14 +16,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import pickle
 
 import numpy as np
 
 from clutt3r_core.config import SegmentConfig, with_fields
 from clutt3r_core.evaluation.breakdown import ERROR_KINDS, _near_other_label, error_breakdown
 from clutt3r_core.evaluation.metrics import EVAL_VOXEL, evaluate_instances, union_cells, voxelize_labels
-from clutt3r_core.evaluation.runner import _scene_file, prepare_scene, synth_suite
+from clutt3r_core.evaluation.runner import _load_prepared, synth_suite
 from clutt3r_core.pipeline import segment
 
 
@@ -58,8 +57,7 @@ def main() -> None:
              if int(s.name[-4:]) in args.seeds]
     rows: dict[float, list[dict]] = {h: [] for h in args.heights}
     for spec in specs:
-        prepare_scene((spec, args.cache))
-        scene = pickle.loads(_scene_file(args.cache, spec).read_bytes()).scene
+        scene = _load_prepared(args.cache, spec).scene  # generated into the cache when missing
         gt = scene.ground_truth
         for h in args.heights:
             seg = segment(scene, with_fields(SegmentConfig(), {"refine.contact_height": h}), progress=False)
