@@ -144,24 +144,8 @@ def depth_changes(state, view: View, config: UpdateConfig, assoc: Association, s
             continue
         cands.append((mi, pts, float(np.linalg.norm(np.ptp(pts, axis=0))), rest))
     starts = start_rotations(config.pose.registration_yaw_step_deg)
-    found, n_reg = [], 0
-    for k in sorted(moved | hidden):
-        sel = state.instance == k
-        model, colors = state.points[sel].astype(np.float64), state.colors[sel]
-        diam = float(np.linalg.norm(np.ptp(model, axis=0)))
-        for mi, pts, ext, rest in cands:
-            if ext > cc.max_extent_ratio * diam + 0.01:
-                continue
-            reg = register(model, pts, cam, depth, starts=starts, tol=cc.in_place_tol,
-                           colors=colors, rgb=view.rgb,
-                           photo_weight=config.pose.registration_photo_weight,
-                           tie_margin=config.pose.registration_tie_margin)
-            n_reg += 1
-            if reg is None or reg.fitness < cc.accept_fitness or reg.consistency < cc.accept_consistency:
-                continue
-            iou = fit_iou(model, reg.T_world, cam, voxel, occ, rest)
-            if iou >= (cc.accept_iou if k in moved else cc.accept_iou_hidden):
-                found.append((reg.score * iou, k, mi, reg, iou))
+    found, n_reg = _register_all(state, view, config, sorted(moved | hidden), cands, starts, occ,
+                                 lambda k: cc.accept_iou if k in moved else cc.accept_iou_hidden)
     used_k, used_m = set(), set()
     taken: list[np.ndarray] = []  # moved points of the accepted fits (ChangeConfig.max_fit_overlap)
     in_place_tree = cKDTree(state.points[np.isin(state.instance, stay)]) if len(stay) else None
@@ -229,28 +213,9 @@ def _search_regions(state, view: View, config: UpdateConfig, left: list[int], mo
                 continue
             pts = np.concatenate([pa, pb])
             targets.append((ma | mb, pts, float(np.linalg.norm(np.ptp(pts, axis=0)))))
-    found, n_reg = [], 0
-    for k in left:
-        sel = state.instance == k
-        model, colors = state.points[sel].astype(np.float64), state.colors[sel]
-        diam = float(np.linalg.norm(np.ptp(model, axis=0)))
-        for ri, (m, pts, ext) in enumerate(targets):
-            if ext > cc.max_extent_ratio * diam + 0.01:
-                continue
-            # IoU >= accept_iou needs the region within 1 / accept_iou of the largest area the
-            # object can cover: a disc of its diameter (isodiametric) at its nearest possible depth
-            z = max(float(np.min(cam.project(pts)[1])) - diam, 0.05)
-            if cc.accept_iou * np.count_nonzero(m) > np.pi / 4 * (cam.fx * diam / z) * (cam.fy * diam / z):
-                continue
-            reg = register(model, pts, cam, depth, starts=starts, tol=cc.in_place_tol, colors=colors, rgb=view.rgb,
-                           photo_weight=config.pose.registration_photo_weight,
-                           tie_margin=config.pose.registration_tie_margin)
-            n_reg += 1
-            if reg is None or reg.fitness < cc.accept_fitness or reg.consistency < cc.accept_consistency:
-                continue
-            iou = fit_iou(model, reg.T_world, cam, voxel, occ, m)
-            if iou >= cc.accept_iou_region:
-                found.append((reg.score * iou, k, ri, reg, iou))
+    found, n_reg = _register_all(state, view, config, left,
+                                 [(ri, pts, ext, m) for ri, (m, pts, ext) in enumerate(targets)], starts, occ,
+                                 lambda k: cc.accept_iou_region, area_bound=True)
     used_k, used_r = set(), set()
     for score, k, ri, reg, iou in sorted(found, key=lambda f: (-f[0], f[1], f[2])):
         if k in used_k or ri in used_r:
@@ -264,6 +229,41 @@ def _search_regions(state, view: View, config: UpdateConfig, left: list[int], mo
         taken.append(q)
         fits[k] = Fit(-1, reg, iou, targets[ri][0])
     return n_reg
+
+
+def _register_all(state, view: View, config: UpdateConfig, ks: list[int], targets: list, starts: np.ndarray, occ,
+                  accept_iou, area_bound: bool = False) -> tuple[list, int]:
+    """Register each instance of ``ks`` to each target (index, (n, 3) depth points, their
+    extent, (H, W) bool pixels the fit's IoU is measured on) whose extent its size allows, and
+    keep the registrations that pass ``accept_fitness`` / ``accept_consistency`` and reach
+    ``accept_iou(k)``. ``area_bound``: also skip targets too large for the object to reach that
+    IoU (unexplained regions). Returns ([(score x IoU, k, target index, registration, IoU)],
+    registrations run)."""
+    cc, cam = config.change, view.camera
+    found, n_reg = [], 0
+    for k in ks:
+        sel = state.instance == k
+        model, colors = state.points[sel].astype(np.float64), state.colors[sel]
+        diam = float(np.linalg.norm(np.ptp(model, axis=0)))
+        for ti, pts, ext, target in targets:
+            if ext > cc.max_extent_ratio * diam + 0.01:
+                continue
+            if area_bound:
+                # IoU >= accept_iou needs the region within 1 / accept_iou of the largest area the
+                # object can cover: a disc of its diameter (isodiametric) at its nearest possible depth
+                z = max(float(np.min(cam.project(pts)[1])) - diam, 0.05)
+                if cc.accept_iou * np.count_nonzero(target) > np.pi / 4 * (cam.fx * diam / z) * (cam.fy * diam / z):
+                    continue
+            reg = register(model, pts, cam, view.depth, starts=starts, tol=cc.in_place_tol, colors=colors,
+                           rgb=view.rgb, photo_weight=config.pose.registration_photo_weight,
+                           tie_margin=config.pose.registration_tie_margin)
+            n_reg += 1
+            if reg is None or reg.fitness < cc.accept_fitness or reg.consistency < cc.accept_consistency:
+                continue
+            iou = fit_iou(model, reg.T_world, cam, state.voxel_size, occ, target)
+            if iou >= accept_iou(k):
+                found.append((reg.score * iou, k, ti, reg, iou))
+    return found, n_reg
 
 
 def registration_result(reg: Registration, points: np.ndarray, camera, voxel: float,
