@@ -37,8 +37,8 @@ from clutt3r_viewer.events import PoseIterations, register_event_source
 from clutt3r_viewer.layers import register_color_layer
 from clutt3r_viewer.loading import register_update_loader
 
-__all__ = ["load_update_frames", "update_pose_events", "update_motions", "updated_scene", "UpdateSceneLayer",
-           "GHOST_WHITE"]
+__all__ = ["load_update_frames", "update_pose_events", "update_motions", "updated_scene", "updated_labels",
+           "UpdateSceneLayer", "GHOST_WHITE"]
 
 GHOST_WHITE = 0.75
 """Removed instances' points are drawn as their instance colour blended this much with white."""
@@ -160,16 +160,26 @@ def updated_scene(data, u: int, idx: np.ndarray, after: bool = True) -> tuple[np
     idx = np.asarray(idx, np.int64)
     inst0 = np.asarray(seg.instance)[idx]
     pts = np.asarray(seg.points, np.float64)[idx].copy()
+    inst, gone = updated_labels(data, u, idx, after)
     n_done = u + 1 if after else u  # updates applied to the scene shown
     if n_done <= 0 or not data.updates:
-        return pts, inst0.astype(np.int32), np.zeros(len(idx), bool)
+        return pts, inst, gone
     M = update_motions(data.updates[:n_done], int(inst0.max(initial=-1)) + 1)[n_done]
     for k in np.flatnonzero(np.any(M != np.eye(4), axis=(1, 2))):
         sel = inst0 == k
         pts[sel] = pts[sel] @ M[k, :3, :3].T + M[k, :3, 3]
-    pi = data.updates[n_done - 1].point_instance
+    return pts, inst, gone
+
+
+def updated_labels(data, u: int, idx: np.ndarray, after: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """The instance and gone arrays of ``updated_scene`` without its positions (the colour
+    layer's part: the Scene panel asks ``updated_scene`` for the positions of the same points)."""
+    idx = np.asarray(idx, np.int64)
+    inst0 = np.asarray(data.seg.instance)[idx]
+    n_done = u + 1 if after else u
+    pi = data.updates[n_done - 1].point_instance if n_done > 0 and data.updates else None
     inst = inst0.astype(np.int32) if pi is None else np.asarray(pi, np.int32)[idx]
-    return pts, inst, (inst0 >= 0) & (inst < 0)
+    return inst, (inst0 >= 0) & (inst < 0)
 
 
 @dataclass(frozen=True)
@@ -185,7 +195,7 @@ class UpdateSceneLayer:
     def colors(self, inp, state) -> np.ndarray:
         if not 0 <= state.update < len(inp.data.updates):
             return label_colors(inp.instance[inp.idx])  # -1 = the initial segmentation
-        _, inst, gone = updated_scene(inp.data, state.update, inp.idx, state.update_after)
+        inst, gone = updated_labels(inp.data, state.update, inp.idx, state.update_after)
         col = label_colors(inst)
         if gone.any():
             own = label_colors(np.asarray(inp.data.seg.instance)[inp.idx][gone]).astype(np.float32)
