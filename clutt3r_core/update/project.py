@@ -12,6 +12,7 @@ follows the object's size, not the image's.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -143,15 +144,10 @@ def _zbuf_by_filter(z: np.ndarray, u: np.ndarray, v: np.ndarray, r: np.ndarray, 
     return out
 
 
-_SQUARES: dict[int, np.ndarray] = {}
-
-
+@functools.cache
 def _square(r: int) -> np.ndarray:
-    """(2r+1, 2r+1) uint8 ones: the erosion kernel of a splat of half-size r, cached."""
-    k = _SQUARES.get(r)
-    if k is None:
-        k = _SQUARES[r] = np.ones((2 * r + 1, 2 * r + 1), np.uint8)
-    return k
+    """(2r+1, 2r+1) uint8 ones: the erosion / dilation kernel of a splat of half-size r, cached."""
+    return np.ones((2 * r + 1, 2 * r + 1), np.uint8)
 
 
 def _may_win(zbuf: np.ndarray, z: np.ndarray, u: np.ndarray, v: np.ndarray, r: np.ndarray, idx: np.ndarray,
@@ -169,8 +165,7 @@ def _may_win(zbuf: np.ndarray, z: np.ndarray, u: np.ndarray, v: np.ndarray, r: n
         g = idx[sel]
         rr = int(rr)
         pad = np.pad(zbuf, rr, constant_values=-np.inf)
-        zz = cv2.dilate(pad, np.ones((2 * rr + 1, 2 * rr + 1), np.uint8), borderType=cv2.BORDER_CONSTANT,
-                        borderValue=-np.inf)
+        zz = cv2.dilate(pad, _square(rr), borderType=cv2.BORDER_CONSTANT, borderValue=-np.inf)
         uu, vv = u[g] - u0 + rr, v[g] - v0 + rr
         inside = (uu >= 0) & (uu < w + 2 * rr) & (vv >= 0) & (vv < h + 2 * rr)
         hit = np.zeros(len(g), bool)
