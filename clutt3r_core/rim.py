@@ -124,8 +124,9 @@ def attach_labels(points: np.ndarray, labels: np.ndarray, query: np.ndarray, k: 
     points: (N, 3) float world metres, the labelled points (N >= 1 when there is a query);
     labels: (N,) int, -1 = unlabelled (a label like any other here); query: (R, 3) float world
     metres; k >= 1 neighbours; max_distance: metres, neighbours farther away do not vote. Equal
-    counts go to the label whose nearest voter is nearest (pykdtree orders equal distances by
-    index). A query point never changes a labelled point's label, and its label is always one
+    counts go to the label whose nearest voter is nearest (``normals.knn_query``: equal distances
+    among the k found are ordered by index; which of several points tied at the k-th distance
+    is found is the tree's choice). A query point never changes a labelled point's label, and its label is always one
     of its voters' (or -1 without voters).
     """
     points = np.asarray(points, np.float64).reshape(-1, 3)
@@ -140,11 +141,13 @@ def attach_labels(points: np.ndarray, labels: np.ndarray, query: np.ndarray, k: 
         return Attached(np.zeros(0, np.int32), np.zeros(0, np.int64))
     if len(points) == 0:
         raise SceneError("attach_labels: no labelled points to attach to")
-    from clutt3r_core.normals import knn_tree
+    from clutt3r_core.normals import knn_query, knn_tree
 
     k = min(k, len(points))
-    d, j = knn_tree(points).query(query, k=k)
-    d, j = d.reshape(r, k), j.reshape(r, k).astype(np.int64)
+    # knn_query orders equal distances among the k found by index (pykdtree's query does not)
+    # and runs a small query on one OpenMP thread; sqrt of its squared distances equals pykdtree's
+    d2, j = knn_query(knn_tree(points), query, k)
+    d, j = np.sqrt(d2), j.astype(np.int64)
     lab = labels[j]
     voter = d <= max_distance
     # votes for the label at each position among the voters; a position that does not vote has -1
