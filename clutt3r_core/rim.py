@@ -19,14 +19,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from clutt3r_core.errors import SceneError
+from clutt3r_core.scene import _frozen_array as _readonly  # the scene types' read-only array rule
 
 __all__ = ["RimVoxels", "Attached", "attach_labels", "split_rim", "rim_apart"]
-
-
-def _readonly(a: np.ndarray) -> np.ndarray:
-    a = np.ascontiguousarray(a)
-    a.setflags(write=False)
-    return a
 
 
 @dataclass(frozen=True, eq=False)
