@@ -74,22 +74,10 @@ def test_zbuf_filter_matches_scipy_minimum_filter(seed: int, h: int, w: int, r: 
 def _splat_points_reference(points, camera, voxel, scale=1.0, window=None):
     """project.splat's point buffer as written before the winner pre-selection (every point
     expanded to every offset, ``np.minimum.at``): the reference the fast path must equal."""
-    from clutt3r_core.update.project import splat_radius
+    from clutt3r_core.update.project import splat_inputs
 
-    uv, z = camera.project(points)
-    ok = np.isfinite(z) & (z > 1e-6) & np.all(np.isfinite(uv), axis=1)
-    u = np.round(np.where(ok, uv[:, 0], 0)).astype(np.int64)
-    v = np.round(np.where(ok, uv[:, 1], 0)).astype(np.int64)
-    r = splat_radius(np.where(ok, z, np.inf), camera, voxel, scale)
-    H, W = camera.height, camera.width
-    ok &= (u + r >= 0) & (u - r < W) & (v + r >= 0) & (v - r < H)
-    if window is None:
-        v0, v1 = max(0, int((v - r)[ok].min())), min(H, int((v + r)[ok].max()) + 1)
-        u0, u1 = max(0, int((u - r)[ok].min())), min(W, int((u + r)[ok].max()) + 1)
-    else:
-        v0, u0, hh, ww = window
-        v1, u1 = v0 + hh, u0 + ww
-    h, w = v1 - v0, u1 - u0
+    # the projection, radii and window are splat's own (shared); the buffer writing below is the old one
+    z, u, v, r, ok, (v0, u0, h, w) = splat_inputs(points, camera, voxel, scale, window)
     zbuf, pbuf = np.full(h * w, np.inf), np.full(h * w, -1, np.int64)
     idx = np.flatnonzero(ok)
     rmax = int(r[idx].max())
