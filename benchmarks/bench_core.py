@@ -168,50 +168,24 @@ def _naive_embed_masks(self, rgb, masks):
 
 
 def _naive_fit_plane_ransac(points, distance, iterations=500, seed=0, max_eval=4000, normals=None, min_normal_dot=0.0):
+    # the same hypotheses as today's (support.ransac_hypothesis); the naive part is the
+    # refinement by a full SVD of the (P, 3) inliers, as before the 3x3 scatter's eigh
+    from clutt3r_core.support import plane_inliers, ransac_hypothesis
+
     pts = np.asarray(points, dtype=np.float64)
-    n = pts.shape[0]
-    if n < 3:
+    nr = np.asarray(normals, dtype=np.float64) if normals is not None and min_normal_dot > 0 else None
+    plane = ransac_hypothesis(pts, distance, iterations, seed, max_eval, nr, min_normal_dot)
+    if plane is None:
         return None
-    use_n = normals is not None and min_normal_dot > 0
-    nr = np.asarray(normals, dtype=np.float64) if use_n else None
-
-    def inliers(q, qn, pl):
-        ok = np.abs(q @ pl[:3] + pl[3]) <= distance
-        if qn is not None:
-            ok &= np.abs(qn @ pl[:3]) >= min_normal_dot
-        return ok
-
-    rng = np.random.default_rng(seed)
-    sel = np.arange(n) if n <= max_eval else rng.choice(n, max_eval, replace=False)
-    ev, evn = pts[sel], (nr[sel] if use_n else None)
-    tri = rng.integers(0, n, size=(iterations, 3))
-    a, b, c = pts[tri[:, 0]], pts[tri[:, 1]], pts[tri[:, 2]]
-    nrm = np.cross(b - a, c - a)
-    norm = np.linalg.norm(nrm, axis=1)
-    good = norm > 1e-12
-    if not good.any():
-        return None
-    nrm = nrm[good] / norm[good, None]
-    d = -np.einsum("ij,ij->i", nrm, a[good])
-    ev32, nrm32, d32 = ev.astype(np.float32), nrm.astype(np.float32), d.astype(np.float32)
-    evn32 = evn.astype(np.float32) if use_n else None
-    scores = []
-    for i in range(0, len(d), 100):
-        ok = np.abs(ev32 @ nrm32[i : i + 100].T + d32[i : i + 100]) <= distance
-        if use_n:
-            ok &= np.abs(evn32 @ nrm32[i : i + 100].T) >= min_normal_dot
-        scores.append(ok.sum(axis=0))
-    best = int(np.argmax(np.concatenate(scores)))
-    plane = np.append(nrm[best], d[best])
     for _ in range(2):
-        inl = inliers(pts, nr, plane)
+        inl = plane_inliers(pts, nr, plane, distance, min_normal_dot)
         if inl.sum() < 3:
             break
         q = pts[inl]
         cen = q.mean(axis=0)
         normal = np.linalg.svd(q - cen, full_matrices=False)[2][2]
         plane = np.append(normal, -normal @ cen)
-    return plane, inliers(pts, nr, plane)
+    return plane, plane_inliers(pts, nr, plane, distance, min_normal_dot)
 
 
 def _naive_group_keys(keys, ext):

@@ -16,7 +16,7 @@ from clutt3r_core.pointcloud import FusedCloud
 if TYPE_CHECKING:
     from clutt3r_core.supervoxels import SuperVoxelConfig
 
-__all__ = ["fit_plane_ransac", "mark_support"]
+__all__ = ["fit_plane_ransac", "plane_inliers", "ransac_hypothesis", "mark_support"]
 
 
 def fit_plane_ransac(
@@ -36,21 +36,48 @@ def fit_plane_ransac(
     and arbitrary sign, (N,) bool inliers) or None for fewer than 3 points.
     """
     pts = np.asarray(points, dtype=np.float64)
+    nr = np.asarray(normals, dtype=np.float64) if normals is not None and min_normal_dot > 0 else None
+    plane = ransac_hypothesis(pts, distance, iterations, seed, max_eval, nr, min_normal_dot)
+    if plane is None:
+        return None
+
+    # Two least-squares refinements over the inliers: the normal is the eigenvector of
+    # the smallest eigenvalue of the 3x3 scatter of the centred inliers (the last right
+    # singular vector of their SVD, without the (P, 3) U factor that made the SVD slow).
+    for _ in range(2):
+        inl = plane_inliers(pts, nr, plane, distance, min_normal_dot)
+        if inl.sum() < 3:
+            break
+        q = pts[inl]
+        cen = q.mean(axis=0)
+        q -= cen
+        normal = np.linalg.eigh(q.T @ q)[1][:, 0]
+        plane = np.append(normal, -normal @ cen)
+    return plane, plane_inliers(pts, nr, plane, distance, min_normal_dot)
+
+
+def plane_inliers(points: np.ndarray, normals: np.ndarray | None, plane: np.ndarray, distance: float,
+                  min_normal_dot: float) -> np.ndarray:
+    """(N,) bool: ``points`` (N, 3) within ``distance`` of ``plane`` [n, d] and, with ``normals``
+    (N, 3), |<normal, n>| >= ``min_normal_dot``."""
+    ok = np.abs(points @ plane[:3] + plane[3]) <= distance
+    if normals is not None:
+        ok &= np.abs(normals @ plane[:3]) >= min_normal_dot
+    return ok
+
+
+def ransac_hypothesis(pts: np.ndarray, distance: float, iterations: int, seed: int, max_eval: int,
+                      normals: np.ndarray | None, min_normal_dot: float) -> np.ndarray | None:
+    """The best of ``iterations`` three-point plane hypotheses over ``pts`` (N, 3) float64, scored
+    on at most ``max_eval`` of them (``fit_plane_ransac`` before its refinement); None for fewer
+    than 3 points or only degenerate triples. ``normals``: (N, 3) float64, or None (no normal test)."""
     n = pts.shape[0]
     if n < 3:
         return None
-    use_n = normals is not None and min_normal_dot > 0
-    nr = np.asarray(normals, dtype=np.float64) if use_n else None
-
-    def inliers(q: np.ndarray, qn: np.ndarray | None, pl: np.ndarray) -> np.ndarray:
-        ok = np.abs(q @ pl[:3] + pl[3]) <= distance
-        if qn is not None:
-            ok &= np.abs(qn @ pl[:3]) >= min_normal_dot
-        return ok
-
+    use_n = normals is not None
     rng = np.random.default_rng(seed)
     sel = np.arange(n) if n <= max_eval else rng.choice(n, max_eval, replace=False)
-    ev, evn = pts[sel], (nr[sel] if use_n else None)
+    ev, evn = pts[sel], (normals[sel] if use_n else None)
     tri = rng.integers(0, n, size=(iterations, 3))
     a, b, c = pts[tri[:, 0]], pts[tri[:, 1]], pts[tri[:, 2]]
     nrm = np.cross(b - a, c - a)
@@ -70,22 +97,8 @@ def fit_plane_ransac(
         if use_n:
             ok &= np.abs(evn32 @ nrm32[i : i + 100].T) >= min_normal_dot
         scores.append(ok.sum(axis=0))
-    scores = np.concatenate(scores)
-    best = int(np.argmax(scores))
-    plane = np.append(nrm[best], d[best])
-    # Two least-squares refinements over the inliers: the normal is the eigenvector of
-    # the smallest eigenvalue of the 3x3 scatter of the centred inliers (the last right
-    # singular vector of their SVD, without the (P, 3) U factor that made the SVD slow).
-    for _ in range(2):
-        inl = inliers(pts, nr, plane)
-        if inl.sum() < 3:
-            break
-        q = pts[inl]
-        cen = q.mean(axis=0)
-        q -= cen
-        normal = np.linalg.eigh(q.T @ q)[1][:, 0]
-        plane = np.append(normal, -normal @ cen)
-    return plane, inliers(pts, nr, plane)
+    best = int(np.argmax(np.concatenate(scores)))
+    return np.append(nrm[best], d[best])
 
 
 def _group_extent(values: np.ndarray, labels: np.ndarray, k: int) -> np.ndarray:
