@@ -36,13 +36,19 @@ def _without_mask(v: View, instance: int) -> View:
     return View(v.frame, v.rgb, v.camera, v.depth, MaskCandidates(v.masks.masks[keep], v.masks.ids[keep]), v.name)
 
 
-def test_a_push_whose_mask_was_dropped_is_found_in_the_unexplained_depth():
+def _pushed(yaw_deg: float):
+    """Two boxes on a table, the state of it, box 0 turned ``yaw_deg`` about its centre and pushed
+    5 cm along -y: (points, colours, instances, state, box 0's centre, T_world, moved points)."""
     pts, cols, inst = two_boxes_on_a_table()
     st = _state(pts, cols, inst)
     c = st.points_of(0).astype(np.float64).mean(axis=0)
-    T = yaw_motion(25.0, (0.0, -0.05, 0.0), c)
+    T = yaw_motion(yaw_deg, (0.0, -0.05, 0.0), c)
     moved = pts.copy()
     moved[inst == 0] = moved[inst == 0] @ T[:3, :3].T + T[:3, 3]
+    return pts, cols, inst, st, c, T, moved
+
+def test_a_push_whose_mask_was_dropped_is_found_in_the_unexplained_depth():
+    pts, cols, inst, st, c, T, moved = _pushed(25.0)
     v = _without_mask(render_view(moved, cols, inst, camera(**CAM), frame=8), 0)
     off = update_scene(st, v, UpdateConfig(change=ChangeConfig(search_unexplained=False), pose=FAST.pose))
     assert off.record(0).status == "removed"  # the failure the rule is for: no mask, no fit
@@ -150,12 +156,7 @@ def test_region_fields_are_checked():
 def test_a_push_split_in_two_by_a_depth_hole_is_found_as_a_pair_of_regions():
     # the pushed box's mask is dropped and a 4-px column without depth (a thin occluder the
     # sensor missed) cuts its region in two; neither half alone reaches accept_iou_region
-    pts, cols, inst = two_boxes_on_a_table()
-    st = _state(pts, cols, inst)
-    c = st.points_of(0).astype(np.float64).mean(axis=0)
-    T = yaw_motion(20.0, (0.0, -0.05, 0.0), c)
-    moved = pts.copy()
-    moved[inst == 0] = moved[inst == 0] @ T[:3, :3].T + T[:3, 3]
+    pts, cols, inst, st, c, T, moved = _pushed(20.0)
     v = render_view(moved, cols, inst, camera(**CAM), frame=8)
     box = v.masks.masks[list(v.masks.ids).index(1)]
     us = np.nonzero(box.any(axis=0))[0]
