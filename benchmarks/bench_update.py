@@ -20,7 +20,16 @@ views, run ``update_scene`` on the post view, and score against ``gt/interaction
   nearest true point, cm), because a can or a ball turned about its axis looks the same from
   every yaw;
 - IoU before/after of that instance, and wall and CPU time per update (the whole ``update_scene``;
-  CPU time is the fair number on a shared machine: torch runs on one thread).
+  CPU time is the fair number on a shared machine: torch runs on one thread);
+- new objects (views with depth, ``newobj.py``; ``new_object_scores``): each added instance is
+  labelled with the GT object under the majority of its points' pixels in the post view (-1 =
+  table / background: noise); the GT objects with no instance before the update and >= 200 px
+  in the post view (not the removed one) are *new*; one is found when an added instance has
+  3D IoU >= 0.5 with it (1 cm voxels; the reference is the object's post-view pixels
+  back-projected with the post depth: one view shows only the object's front, which is all an
+  added instance can hold). An added instance is *right* when its object is new or is the
+  displaced object whose instance the update reported removed (re-added: it has an instance
+  again), a *duplicate* when its object still has an instance, *noise* when it has no object.
 
 Usage::
 
@@ -217,7 +226,9 @@ def run_pair(scene_dir: Path, run_dir: Path, cfg: UpdateConfig, no_depth: bool, 
         "static_flagged": sum(1 for r in res.instances if r.status in ("removed", "displaced")
                               and inst_obj.get(r.instance, -1) not in (rem_o, dis_o)),
         "statuses": {str(r.instance): [r.status, inst_obj.get(r.instance, -1), r.match] for r in res.instances},
+        "displaced_main": main.get(dis_o, -1),
     }
+    out.update(new_object_scores(sc, view, res, inst_obj, main, rem_o, dis_o))
     k = main.get(dis_o)
     if k is not None and k in pred_displaced:
         r = res.record(k)
@@ -236,6 +247,64 @@ def run_pair(scene_dir: Path, run_dir: Path, cfg: UpdateConfig, no_depth: bool, 
                    iou_before=r.iou_before, iou_after=r.iou_after, match=r.match,
                    stages=r.pose.stages if r.pose is not None else 0, iters=len(r.pose.trace) if r.pose is not None else 0)
     return out
+
+
+NEW_IOU = 0.5
+"""3D IoU (1 cm voxels) an added instance needs with a GT object's post-view points to count as it."""
+
+
+def _voxels(p: np.ndarray, size: float = 0.01) -> set:
+    return set(map(tuple, np.floor(np.asarray(p, np.float64) / size).astype(np.int64).tolist()))
+
+
+def new_object_scores(sc, view, res, inst_obj: dict, main: dict, rem_o: int, dis_o: int) -> dict:
+    """The new-object metrics of one pair (module docstring)."""
+    added = getattr(res, "added", ())  # an older checkout's UpdateResult has none
+    gmap = sc.ground_truth.instance_maps.get(view.frame)
+    depth = sc.post_views[0].depth  # the post view's depth even for --no-depth runs (the reference)
+    cam = view.camera
+    n_obj = len(sc.ground_truth.objects)
+    if gmap is None or depth is None:
+        return {"new_gt": 0, "new_found": 0, "new_added": len(added), "new_right": 0, "new_dup": 0, "new_noise": 0,
+                "displaced_readded": False, "new_detail": []}
+    ok = np.isfinite(depth) & (depth > 0)
+
+    def gt_vox(o: int) -> set:
+        vs, us = np.nonzero((gmap == o) & ok)
+        return _voxels(cam.pixels_to_world(us, vs, depth[vs, us]))
+
+    removed = set(res.by_status("removed"))
+    still = {o for k, o in inst_obj.items() if o >= 0 and k not in removed}  # objects that keep an instance
+    new_gt = [o for o in range(n_obj) if o not in main and o != rem_o and np.count_nonzero(gmap == o) >= 200]
+    found, right, dup, noise, readded, detail = set(), 0, 0, 0, False, []
+    for a in added:
+        uv, _ = cam.project(a.points.astype(np.float64))
+        u, v = np.round(uv[:, 0]).astype(int), np.round(uv[:, 1]).astype(int)
+        inb = (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
+        lab = np.full(len(u), -1)
+        lab[inb] = gmap[v[inb], u[inb]]
+        o = int(np.bincount(lab + 1).argmax()) - 1
+        o = o if o >= 0 and np.mean(lab == o) >= 0.5 else -1
+        iou = 0.0
+        if o >= 0:
+            A, B = _voxels(a.points), gt_vox(o)
+            iou = len(A & B) / max(len(A | B), 1)
+        if o < 0:
+            noise += 1
+            kind = "noise"
+        elif o in still:
+            dup += 1
+            kind = "duplicate"
+        else:
+            right += 1
+            kind = "readded-displaced" if o == dis_o else "new"
+            if iou >= NEW_IOU and o in new_gt:
+                found.add(o)
+            if o == dis_o and iou >= NEW_IOU:
+                readded = True
+        detail.append([a.instance, o, kind, round(iou, 3), len(a.points)])
+    return {"new_gt": len(new_gt), "new_found": len(found), "new_added": len(added), "new_right": right,
+            "new_dup": dup, "new_noise": noise, "displaced_readded": readded, "new_detail": detail}
 
 
 def summarise(rows: list[dict]) -> dict:
@@ -265,6 +334,15 @@ def summarise(rows: list[dict]) -> dict:
         "iou_after_mean": float(np.mean([r["iou_after"] for r in pose])) if pose else float("nan"),
         "time_s_median": q([r["time_s"] for r in rows], 50), "time_s_max": max(r["time_s"] for r in rows),
         "cpu_s_median": q([r["cpu_s"] for r in rows], 50), "cpu_s_max": max(r["cpu_s"] for r in rows),
+        "new_objects_gt": sum(r.get("new_gt", 0) for r in rows),
+        "new_objects_found": sum(r.get("new_found", 0) for r in rows),
+        "new_added": sum(r.get("new_added", 0) for r in rows),
+        "new_added_right": sum(r.get("new_right", 0) for r in rows),
+        "new_added_duplicate": sum(r.get("new_dup", 0) for r in rows),
+        "new_added_noise": sum(r.get("new_noise", 0) for r in rows),
+        "displaced_unfitted": sum(1 for r in rows if r["displaced_visible"] and r["displaced_has_instance"]
+                                  and r["statuses"].get(str(r.get("displaced_main", -1)), [""])[0] == "removed"),
+        "displaced_readded": sum(bool(r.get("displaced_readded")) for r in rows),
     }
 
 
@@ -305,12 +383,17 @@ def main() -> None:
                     help="ChangeConfig.search_unexplained=False: moved instances are registered to mask candidates only")
     ap.add_argument("--no-unfitted-presence", action="store_true",
                     help="ChangeConfig.unfitted_presence=False: a moved instance without a fit is removed")
+    ap.add_argument("--no-new-objects", action="store_true",
+                    help="ChangeConfig.new_objects=False: new masks are reported, not added")
     ap.add_argument("--tag", default="", help="suffix of results_<tag>.json")
     a = ap.parse_args()
     cfg = UpdateConfig(change=ChangeConfig(verify=not a.no_verify, min_fit_iou=a.min_fit_iou,
                                            use_depth=not a.no_depth_cues, use_photo=not a.no_photo,
                                            search_unexplained=not a.no_region_search,
-                                           unfitted_presence=not a.no_unfitted_presence),
+                                           unfitted_presence=not a.no_unfitted_presence,
+                                           # an older checkout (the "before" of an A/B) has no such field
+                                           **({"new_objects": not a.no_new_objects}
+                                              if hasattr(ChangeConfig, "new_objects") else {})),
                        pose=replace(PoseConfig(), dof=a.dof, early_exit=not a.no_early_exit,
                                     refine_registration=a.refine_registration,
                                     registration_photo_weight=a.photo_weight,

@@ -67,6 +67,7 @@ class HistoryEntry:
         displaced: ids moved.
         T_world: (len(displaced), 4, 4) their motions.
         occluded: ids that were not visible (kept unchanged).
+        added: ids of the instances the update added (status "new", ``newobj.py``).
     """
 
     step: int
@@ -75,18 +76,19 @@ class HistoryEntry:
     displaced: tuple[int, ...]
     T_world: np.ndarray
     occluded: tuple[int, ...] = ()
+    added: tuple[int, ...] = ()
 
     def to_json(self) -> dict:
         return {"step": self.step, "frame": self.frame, "removed": list(self.removed),
                 "displaced": list(self.displaced), "T_world": np.round(self.T_world, 8).tolist(),
-                "occluded": list(self.occluded)}
+                "occluded": list(self.occluded), "added": list(self.added)}
 
     @staticmethod
     def from_json(d: dict) -> "HistoryEntry":
         return HistoryEntry(int(d["step"]), int(d["frame"]), tuple(int(x) for x in d["removed"]),
                             tuple(int(x) for x in d["displaced"]),
                             np.asarray(d["T_world"], np.float64).reshape(-1, 4, 4),
-                            tuple(int(x) for x in d.get("occluded", [])))
+                            tuple(int(x) for x in d.get("occluded", [])), tuple(int(x) for x in d.get("added", [])))
 
 
 @dataclass(frozen=True, eq=False)
@@ -199,21 +201,36 @@ def moved_points(state: SceneState, motions: dict[int, np.ndarray]) -> np.ndarra
 
 def apply_update(state: SceneState, result: UpdateResult) -> SceneState:
     """The next state: displaced instances' points moved by their T_world, removed dropped,
-    static and occluded unchanged; the update appended to the history."""
+    static and occluded unchanged, added instances (``result.added``, status "new") appended
+    with their points, colours and embedding; the update appended to the history."""
     pts = moved_points(state, {r.instance: r.T_world for r in result.instances if r.status == "displaced"})
     removed = np.array(result.by_status("removed"), np.int32)
     keep = ~np.isin(state.instance, removed)
     keep_ids = ~np.isin(state.instance_ids, removed)
     displaced = [r for r in result.instances if r.status == "displaced"]
+    added = sorted(result.added, key=lambda a: a.instance)
+    if {a.instance for a in added} != set(result.by_status("new")):
+        raise SceneError(f"frame {result.frame}: the 'new' instances {sorted(result.by_status('new'))} must come "
+                         f"with their points (UpdateResult.added: {[a.instance for a in added]})")
+    if added and added[0].instance <= int(state.instance_ids.max(initial=-1)):
+        raise SceneError(f"frame {result.frame}: added instance id {added[0].instance} is not above the state's ids")
     entry = HistoryEntry(
         step=state.step + 1, frame=result.frame, removed=tuple(int(x) for x in removed),
         displaced=tuple(r.instance for r in displaced),
         T_world=np.stack([r.T_world for r in displaced]) if displaced else np.zeros((0, 4, 4)),
-        occluded=result.by_status("occluded"),
+        occluded=result.by_status("occluded"), added=tuple(a.instance for a in added),
     )
+    D = state.embeddings.shape[1]
+    emb_new = np.zeros((len(added), D), np.float32)
+    for j, a in enumerate(added):
+        if a.embedding is not None and a.embedding.shape == (D,):
+            emb_new[j] = a.embedding
     return SceneState(
-        points=pts[keep].astype(np.float32), colors=state.colors[keep], instance=state.instance[keep],
-        instance_ids=state.instance_ids[keep_ids], embeddings=state.embeddings[keep_ids],
+        points=np.concatenate([pts[keep].astype(np.float32)] + [a.points for a in added]),
+        colors=np.concatenate([state.colors[keep]] + [a.colors for a in added]),
+        instance=np.concatenate([state.instance[keep]] + [np.full(len(a.points), a.instance, np.int32) for a in added]),
+        instance_ids=np.concatenate([state.instance_ids[keep_ids], np.array([a.instance for a in added], np.int32)]),
+        embeddings=np.concatenate([state.embeddings[keep_ids], emb_new]),
         embedder=state.embedder, voxel_size=state.voxel_size, step=state.step + 1,
         history=state.history + (entry,), run=state.run,
     )

@@ -32,11 +32,14 @@ __all__ = [
     "PoseResult",
     "InstanceUpdate",
     "NewMask",
+    "NewInstance",
     "UpdateResult",
 ]
 
-Status = Literal["static", "displaced", "removed", "occluded"]
-STATUSES: tuple[str, ...] = ("static", "displaced", "removed", "occluded")
+Status = Literal["static", "displaced", "removed", "occluded", "new"]
+STATUSES: tuple[str, ...] = ("static", "displaced", "removed", "occluded", "new")
+"""Status "new": an instance the update added (a new mask with depth, ``newobj.py``); its record follows
+the records of the instances present before the update."""
 
 LOSS_NAMES: tuple[str, ...] = ("total", "chamfer", "photo", "reg_z", "depth")
 """Columns of ``PoseTrace.losses`` (unweighted terms, plus the weighted total)."""
@@ -409,6 +412,21 @@ class ChangeConfig:
     unmatched instance above it (and not hidden) is static: seeds 100-103, static instances
     whose mask was dropped agree at 0.50-0.63 when partly covered or specular, moved and
     removed ones at <= 0.29."""
+    new_objects: bool = True
+    """Ours, views with depth (``update/newobj.py``): an unmatched mask whose depth pixels the
+    updated state does not explain becomes a new instance (points back-projected from the new
+    depth). False = new masks are reported only (as without depth)."""
+    new_min_unexplained: float = 0.5
+    """Ours: a new mask is added only when its largest depth-connected group of unexplained
+    pixels above the table holds at least this fraction of its (2 px eroded) valid depth pixels;
+    a mask mostly explained shows an object the state holds (a static object whose mask the
+    association missed, a registered displaced one). Measured in docs/update.md (session 6)."""
+    new_background_explains: bool = True
+    """Ours: the state's background points (label -1) explain new depth pixels too (TBD)."""
+    new_min_points: int = 50
+    """Ours: ... and at least this many voxels (``SceneState.voxel_size``) once downsampled: the
+    same floor as ``AssociationConfig.min_points`` (below it an instance is a fragment that the
+    update never judges). Measured in docs/update.md (session 6)."""
     splat_scale: float = 1.0
     """Ours: a point is splatted as a square of half-size ``splat_scale * voxel * f / z / 2``
     pixels, voxel = the cloud's voxel size (5 mm, Sec. IV), so neighbouring points close the
@@ -420,7 +438,7 @@ class ChangeConfig:
         fractions = ("tau_iou", "min_fit_iou", "in_place_fraction", "accept_fitness", "accept_consistency",
                      "accept_iou", "accept_iou_hidden", "accept_iou_region", "min_rest_fraction",
                      "max_fit_overlap", "photo_context_share", "photo_min_informative", "photo_in_place_fraction",
-                     "hidden_by_moved_fraction", "photo_gone_fraction")
+                     "hidden_by_moved_fraction", "photo_gone_fraction", "new_min_unexplained")
         for name in fractions:
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
@@ -428,7 +446,7 @@ class ChangeConfig:
         for name in ("min_translation", "min_rotation_deg", "in_place_tol", "min_place_points", "photo_tol_min",
                      "photo_tol_sigma", "photo_search_px", "photo_context_radius", "photo_min_points",
                      "photo_fragment_points", "region_min_height", "region_link", "region_min_pixels",
-                     "region_pair_gap", "region_max_targets"):
+                     "region_pair_gap", "region_max_targets", "new_min_points"):
             v = getattr(self, name)
             if v < 0:
                 raise SceneError(f"ChangeConfig.{name} must be >= 0, got {v}")
@@ -608,10 +626,52 @@ class InstanceUpdate:
 
 @dataclass(frozen=True)
 class NewMask:
-    """A mask of the new view that matched no stored instance (a new or newly revealed object)."""
+    """A mask of the new view that matched no stored instance (a new or newly revealed object).
+
+    Attributes:
+        mask_id: the mask candidate's id.
+        area_px: its area in pixels.
+        instance: the id of the instance it became (``NewInstance``), -1 when it was not added
+            (no depth, mostly explained by the state, too small, the table).
+    """
 
     mask_id: int
     area_px: int
+    instance: int = -1
+
+
+@dataclass(frozen=True, eq=False)
+class NewInstance:
+    """An instance the update adds (status "new"; ``newobj.py``).
+
+    Attributes:
+        instance: its id (never used before in the chain: ``newobj.next_instance_id``).
+        mask_id: the mask candidate it came from.
+        points: (M, 3) float32 world metres, voxel means of the mask's unexplained depth pixels.
+        colors: (M, 3) uint8 their colours.
+        embedding: (D,) float32 unit embedding of the mask (the state's embedder), or None when
+            the state holds no embeddings (D = 0).
+    """
+
+    instance: int
+    mask_id: int
+    points: np.ndarray
+    colors: np.ndarray
+    embedding: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        p = np.asarray(self.points, np.float32)
+        c = np.asarray(self.colors, np.uint8)
+        if p.ndim != 2 or p.shape[1] != 3 or len(p) == 0 or c.shape != p.shape:
+            raise SceneError(f"new instance {self.instance}: points and colors must be (M>0, 3), got "
+                             f"{p.shape} / {c.shape}")
+        object.__setattr__(self, "points", _ro(p))
+        object.__setattr__(self, "colors", _ro(c))
+        if self.embedding is not None:
+            e = np.asarray(self.embedding, np.float32)
+            if e.ndim != 1:
+                raise SceneError(f"new instance {self.instance}: embedding must be (D,), got {e.shape}")
+            object.__setattr__(self, "embedding", _ro(e))
 
 
 @dataclass(frozen=True, eq=False)
@@ -620,7 +680,8 @@ class UpdateResult:
 
     Attributes:
         frame: the frame index of the new view.
-        instances: one record per instance present before the update, by id.
+        instances: one record per instance present before the update, by id, then one record
+            (status "new") per added instance.
         new_masks: unmatched masks of the new view.
         change_masks: (K, H, W) bool, for ``instances`` in order: the instance's associated new
             mask (all False when unmatched) -- what the viewer draws as change masks.
@@ -634,9 +695,15 @@ class UpdateResult:
     change_masks: np.ndarray
     projected: np.ndarray
     time_s: float
+    added: tuple[NewInstance, ...] = ()
+    """The instances added (views with depth, ``ChangeConfig.new_objects``), one per "new" record."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "instances", tuple(self.instances))
+        object.__setattr__(self, "added", tuple(self.added))
+        # a result read back from update.json (the viewer) has "new" records without their points
+        if not set(a.instance for a in self.added) <= set(self.by_status("new")):
+            raise SceneError("UpdateResult: every added NewInstance needs a record with status 'new'")
         if self.change_masks.ndim != 3 or self.change_masks.shape[0] != len(self.instances):
             raise SceneError("UpdateResult.change_masks must be (K, H, W) with one mask per instance record")
         object.__setattr__(self, "change_masks", _ro(np.asarray(self.change_masks, bool)))
@@ -664,6 +731,7 @@ class UpdateResult:
                  "T_world": None if r.T_world is None else np.round(r.T_world, 8).tolist()}
                 for r in self.instances
             ],
-            "new_masks": [{"mask": int(m.mask_id), "area_px": int(m.area_px)} for m in self.new_masks],
+            "new_masks": [{"mask": int(m.mask_id), "area_px": int(m.area_px),
+                           "instance": None if m.instance < 0 else int(m.instance)} for m in self.new_masks],
             "time_s": round(float(self.time_s), 4),
         }

@@ -40,10 +40,12 @@ from clutt3r_core.segmentation.trees import build_instance_tree
 from clutt3r_core.update.associate import (Association, Projection, associate, project_depth, project_instances,
                                            unmatched_status)
 from clutt3r_core.update.depth_change import depth_changes, fit_iou, registration_result
+from clutt3r_core.update.newobj import new_object_candidates, next_instance_id
 from clutt3r_core.update.photo_change import PhotoCheck, photo_at_pose, photo_check
 from clutt3r_core.update.project import mask_iou
 from clutt3r_core.update.state import SceneState, moved_points
-from clutt3r_core.update.types import TAU_SEM_BY_EMBEDDER, InstanceUpdate, NewMask, PoseProblem, UpdateConfig, UpdateResult
+from clutt3r_core.update.types import (TAU_SEM_BY_EMBEDDER, InstanceUpdate, NewInstance, NewMask, PoseProblem,
+                                       UpdateConfig, UpdateResult)
 
 __all__ = ["update_scene", "UpdateDetails"]
 
@@ -295,11 +297,46 @@ def update_scene(
         records = _hidden_by_moved(records, state, proj_all, cam, voxel, scale, cc.hidden_by_moved_fraction,
                                    config.association.nearer_margin)
     taken = set() if dc is None else {f.mask_index for k, f in dc.fits.items()}
-    new = tuple(NewMask(int(masks.ids[mi]), int(np.count_nonzero(masks.masks[mi])))
-                for mi in assoc.new_masks if mi not in taken)
-    change = np.zeros((len(ids), *masks.shape), bool)
+    # a mask the association gave to an instance finally reported removed is unmatched after all
+    gone = {int(r.instance) for r in records if r.status == "removed"}
+    freed = [int(mi) for k, mi in zip(ids, assoc.mask_index) if mi >= 0 and int(k) in gone]
+    new_idx = sorted({mi for mi in list(assoc.new_masks) + freed if mi not in taken})
+    added, became = _add_new(state, view, config, records, new_idx, mask_emb) if dc is not None else ([], {})
+    new = tuple(NewMask(int(masks.ids[mi]), int(np.count_nonzero(masks.masks[mi])), became.get(mi, -1))
+                for mi in new_idx)
+    change = np.zeros((len(ids) + len(added), *masks.shape), bool)
     for i, k in enumerate(ids):
         if int(k) in new_mask:
             change[i] = new_mask[int(k)]
+    for j, (rec, a, mi) in enumerate(added):
+        records.append(rec)
+        change[len(ids) + j] = masks.masks[mi]
     return UpdateResult(frame=view.frame, instances=tuple(records), new_masks=new, change_masks=change,
-                        projected=proj_all.label, time_s=time.perf_counter() - t0)
+                        projected=proj_all.label, time_s=time.perf_counter() - t0, added=tuple(a for _, a, _ in added))
+
+
+def _add_new(state: SceneState, view: View, config: UpdateConfig, records: list[InstanceUpdate], new_idx: list[int],
+             mask_emb) -> tuple[list, dict]:
+    """Views with depth (``ChangeConfig.new_objects``, newobj.py): the new masks that show an
+    object the updated state does not hold become instances with fresh ids. Returns
+    ([(record, NewInstance, mask index)], mask index -> instance id)."""
+    if not config.change.new_objects or not new_idx:
+        return [], {}
+    motions = {r.instance: r.T_world for r in records if r.status == "displaced"}
+    removed = {r.instance for r in records if r.status == "removed"}
+    cands = new_object_candidates(state, view, new_idx, motions, removed, config)
+    masks, cam, out, became = view.masks, view.camera, [], {}
+    nid = next_instance_id(state)
+    for c in cands:
+        emb = None
+        if state.embeddings.shape[1] > 0:
+            # the stored instances' embeddings are their masks' (Sec. III-C.1); a new one has one mask
+            e = np.asarray(mask_emb(np.array([c.mask_index]))[0], np.float32)
+            emb = e / max(float(np.linalg.norm(e)), 1e-12)
+        m = masks.masks[c.mask_index]
+        ia = fit_iou(c.points, np.eye(4), cam, state.voxel_size, None, m)
+        rec = InstanceUpdate(nid, "new", None, ia, None, int(masks.ids[c.mask_index]), "new-depth")
+        out.append((rec, NewInstance(nid, int(masks.ids[c.mask_index]), c.points, c.colors, emb), c.mask_index))
+        became[c.mask_index] = nid
+        nid += 1
+    return out, became
