@@ -20,7 +20,8 @@ from clutt3r_core.visualize import instance_palette
 
 __all__ = ["update_overlay"]
 
-_STATUS_RGB = {"static": (160, 160, 160), "displaced": (255, 200, 0), "removed": (255, 40, 40), "occluded": (80, 160, 255)}
+_STATUS_RGB = {"static": (160, 160, 160), "displaced": (255, 200, 0), "removed": (255, 40, 40), "occluded": (80, 160, 255),
+               "new": (40, 200, 80)}
 
 
 def _fill(img: np.ndarray, label: np.ndarray, pal: np.ndarray, alpha: float = 0.55) -> np.ndarray:
@@ -38,7 +39,7 @@ def _outline(img: np.ndarray, mask: np.ndarray, rgb, width: int = 2) -> None:
 def update_overlay(state: SceneState, view: View, result: UpdateResult) -> np.ndarray:
     """(H + legend, 2 W, 3) uint8: before | after (module docstring)."""
     cam = view.camera
-    n = int(max(state.instance_ids.max(initial=-1), 0)) + 1
+    n = int(max(state.instance_ids.max(initial=-1), max((r.instance for r in result.instances), default=0), 0)) + 1
     pal = instance_palette(n).astype(np.float32)
     before = project_instances(state.points, state.instance, state.instance_ids, cam, state.voxel_size)
     after_state = apply_update(state, result)
