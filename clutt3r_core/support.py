@@ -6,6 +6,7 @@ point 4); it lives here so that module stays about clustering (eq. 1).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -16,7 +17,7 @@ from clutt3r_core.pointcloud import FusedCloud
 if TYPE_CHECKING:
     from clutt3r_core.supervoxels import SuperVoxelConfig
 
-__all__ = ["fit_plane_ransac", "plane_inliers", "ransac_hypothesis", "mark_support"]
+__all__ = ["fit_plane_ransac", "plane_inliers", "ransac_hypothesis", "SupportPlanes", "support_planes", "mark_support"]
 
 
 def fit_plane_ransac(
@@ -120,23 +121,36 @@ def _patch_extent(uvh: np.ndarray, comp: np.ndarray, members: np.ndarray) -> np.
     return out
 
 
-def mark_support(
-    cloud: FusedCloud,
-    labels: np.ndarray,
-    k: int,
-    counts: np.ndarray,
-    src: np.ndarray,
-    dst: np.ndarray,
-    dist: np.ndarray,
-    cfg: SuperVoxelConfig,
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """(support (K,) bool, plane or None); the rule is in the module doc."""
+@dataclass(frozen=True, eq=False)
+class SupportPlanes:
+    """The RANSAC part of support marking (rules 1-3 without the patch graph), which needs only the
+    cloud: ``support_planes`` computes it while the super-voxel graph is built (ours, issue 13).
+
+    Attributes:
+        plane: [nx, ny, nz, d] float64, unit normal oriented towards the cameras; None when no
+            support plane was found (then nothing is marked and the other fields are empty).
+        uvh: (N, 3) float64 voxel coordinates in the plane frame (e1, e2 in the plane, height).
+        ground: (N,) bool, rule 2 (below the plane, or on it and facing along its normal).
+        inliers: per further plane of rule 3, in fit order, (M_i,) int64 voxel indices ascending.
+    """
+
+    plane: np.ndarray | None
+    uvh: np.ndarray
+    ground: np.ndarray
+    inliers: tuple[np.ndarray, ...]
+
+
+def support_planes(cloud: FusedCloud, cfg: SuperVoxelConfig) -> SupportPlanes:
+    """Rules 1-3's plane fits (the module doc of ``clutt3r_core.supervoxels``): the support plane,
+    the ground voxels and the inliers of every further plane, in the order ``mark_support`` used
+    them. Which voxels a further plane may take depends only on earlier fits, never on the
+    patches, so this is the same sequence of fits as one loop over both."""
     pts = cloud.points.astype(np.float64)
     nrm = cloud.normals.astype(np.float64)
-    n = pts.shape[0]
+    none = SupportPlanes(None, np.zeros((0, 3)), np.zeros(0, bool), ())
     fit = fit_plane_ransac(pts, cfg.plane_distance, cfg.plane_iterations, cfg.plane_seed)
     if fit is None or fit[1].mean() < cfg.plane_min_inliers:
-        return np.zeros(k, bool), None
+        return none
     plane, _ = fit
     # Orient the normal towards the cameras (or, without camera centres, along the
     # fused normals, which fuse_views already orients towards the cameras).
@@ -151,7 +165,7 @@ def mark_support(
     # test keeps the lowest centimetre of objects that stand on the support (their sides
     # face sideways) and of thin objects lying on it (a hammer handle) out of the support.
     facing = np.abs(nrm @ plane[:3]) >= np.cos(np.deg2rad(cfg.patch_max_angle))
-    bad = (h < -cfg.plane_distance) | ((h <= cfg.plane_distance) & facing)
+    ground = (h < -cfg.plane_distance) | ((h <= cfg.plane_distance) & facing)
 
     # Plane frame (e1, e2 in the plane, h along its normal) for extents.
     nz = plane[:3]
@@ -159,6 +173,49 @@ def mark_support(
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(nz, e1)
     uvh = np.column_stack([pts @ e1, pts @ e2, h])
+
+    # Rule 3's fits: further planes on the voxels no earlier fit took
+    min_dot = float(np.cos(np.deg2rad(cfg.patch_max_angle)))
+    min_inl = max(cfg.patch_min_voxels, 3)
+    free = ~ground
+    inliers = []
+    for it in range(cfg.max_planes):
+        idx = np.flatnonzero(free)
+        if len(idx) < min_inl:
+            break
+        fit = fit_plane_ransac(
+            pts[idx], cfg.plane_distance, cfg.plane_iterations, cfg.plane_seed + 1 + it,
+            normals=nrm[idx], min_normal_dot=min_dot,
+        )
+        if fit is None or fit[1].sum() < min_inl:
+            break
+        members = idx[fit[1]]
+        free[members] = False  # never re-fit these voxels, large patch or not
+        inliers.append(members)
+    return SupportPlanes(plane, uvh, ground, tuple(inliers))
+
+
+def mark_support(
+    cloud: FusedCloud,
+    labels: np.ndarray,
+    k: int,
+    counts: np.ndarray,
+    src: np.ndarray,
+    dst: np.ndarray,
+    dist: np.ndarray,
+    cfg: SuperVoxelConfig,
+    planes: SupportPlanes | None = None,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """(support (K,) bool, plane or None); the rule is in the module doc of
+    ``clutt3r_core.supervoxels``. ``planes``: ``support_planes(cloud, cfg)`` when computed
+    already (the super-voxel stage runs it beside its graph)."""
+    if planes is None:
+        planes = support_planes(cloud, cfg)
+    if planes.plane is None:
+        return np.zeros(k, bool), None
+    n = cloud.num
+    uvh = planes.uvh
+    bad = planes.ground.copy()
 
     # Rule 3: further large planar patches (tray walls, rims, a raised tray floor).
     near = dist <= 2.0 * cloud.voxel_size  # patch connectivity: k-NN pairs within two voxels
@@ -172,24 +229,10 @@ def mark_support(
     near_ptr = np.zeros(n + 1, np.int64)
     np.cumsum(np.bincount(near_src, minlength=n), out=near_ptr[1:])
     slot = np.empty(n, np.int32)  # a voxel's index among the current plane's inliers
-    min_dot = float(np.cos(np.deg2rad(cfg.patch_max_angle)))
-    min_inl = max(cfg.patch_min_voxels, 3)
-    free = ~bad
-    for it in range(cfg.max_planes):
-        idx = np.flatnonzero(free)
-        if len(idx) < min_inl:
-            break
-        fit = fit_plane_ransac(
-            pts[idx], cfg.plane_distance, cfg.plane_iterations, cfg.plane_seed + 1 + it,
-            normals=nrm[idx], min_normal_dot=min_dot,
-        )
-        if fit is None or fit[1].sum() < min_inl:
-            break
+    for members in planes.inliers:
         inl = np.zeros(n, bool)
-        inl[idx[fit[1]]] = True
-        free &= ~inl  # never re-fit these voxels, large patch or not
+        inl[members] = True
         # patches: components of the inliers' own graph (a few thousand voxels, not all N)
-        members = np.flatnonzero(inl)
         e = concat_ranges(near_ptr[members], near_ptr[members + 1])  # edges out of members, in order
         e = e[inl[near_dst[e]]]
         slot[members] = np.arange(len(members), dtype=np.int32)
@@ -202,4 +245,4 @@ def mark_support(
     frac = np.bincount(labels, weights=w * bad, minlength=k) / np.maximum(counts, 1)
     ext = _group_extent(uvh, labels, k).max(axis=1)
     support = (frac >= cfg.support_fraction) | (ext >= cfg.max_object_extent)
-    return support, plane
+    return support, planes.plane
