@@ -180,6 +180,12 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
         t1 = time.perf_counter()
         return tr, embed(tr[2]), t1 - t0, time.perf_counter() - t1
 
+    def all_hits(beside, cloud) -> tuple:
+        """Every view's ``mask_voxel_hits`` (the trees' candidate order) and their wall seconds."""
+        nodes_masks = beside.result()[0][2]  # done: this pool's one thread ran it first
+        t0 = time.perf_counter()
+        return [mask_voxel_hits(cloud, vi, m) for vi, m in enumerate(nodes_masks)], time.perf_counter() - t0
+
     # ours (issue 13): a light embedder (``beside_fusion``) and the trees it needs run on a
     # second thread while the point cloud is fused and clustered (mostly one thread): the same
     # calls on the same inputs, so the same results; their timings are their own wall seconds,
@@ -197,6 +203,10 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
             raise
         # the loader's own (e.g. a frame demoted to post-interaction), then what the fusion shows
         warnings = tuple(scene.warnings) + view_warnings(views, cloud, config.pointcloud)
+        # ours (issue 13): each view's mask hits per voxel need only the cloud and the trees, so
+        # the second thread counts them (after the trees and embeddings) while the super-voxels
+        # are built here; the same calls on the same inputs
+        hits_beside = pool.submit(all_hits, beside, cloud) if pool is not None else None
         tick("supervoxels")
         with timer("supervoxels"):
             sv = build_supervoxels(cloud, config.supervoxels)
@@ -204,6 +214,7 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
         if beside is not None:
             (built, trees, nodes_masks, nodes), embeddings, t_trees, t_emb = beside.result()  # re-raises its error
             timer.items.append(StageTiming("trees", t_trees))
+            view_hits, t_hits = hits_beside.result()
         else:
             with timer("trees"):
                 built, trees, nodes_masks, nodes = build_trees()
@@ -213,10 +224,12 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
     tick("occupancy")
 
     with timer("occupancy"):
+        if beside is None:
+            view_hits, t_hits = [mask_voxel_hits(cloud, vi, m) for vi, m in enumerate(nodes_masks)], 0.0
         occ_parts, bg_parts = [], []
         support_voxel = sv.support[sv.labels]
         for vi, (v, masks) in enumerate(zip(views, nodes_masks)):
-            hits = mask_voxel_hits(cloud, vi, masks)  # once per view: occupancy and background
+            hits = view_hits[vi]  # once per view: occupancy and background
             occ_parts.append(mask_occupancy(cloud, sv, vi, masks, config.occupancy, hits=hits))
             bg_parts.append(background_masks(hits, support_voxel, config.background_fraction)
                             if config.exclude_background_masks else np.zeros(len(masks), bool))
@@ -228,6 +241,8 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
                                config.grouping.duplicate_iou, config.trees.tau_contain)
         nodes = NodeTable(nodes.frame, nodes.view, nodes.mask_id, nodes.parent, nodes.is_leaf & ~dups.shadow,
                           background)
+    if t_hits:  # the stage's time: here, plus the hits' own wall seconds on the second thread
+        timer.items[-1] = StageTiming("occupancy", timer.items[-1].seconds + t_hits)
     tick("embeddings + leaf graph")
 
     if beside is not None:
