@@ -528,21 +528,35 @@ def _kept_neighbours_grid(vkeys, ext, kept, cand):
     return n
 
 
-def surface_points(views, P, C, pix_list, offsets, strides, cfg):
+def surface_params(cfg) -> SurfaceParams:
+    """The estimate's parameters from a ``pointcloud.PointCloudConfig``."""
+    return SurfaceParams(voxel_size=cfg.voxel_size, min_points=cfg.surface_min_points, min_depth=cfg.min_depth,
+                         max_depth=cfg.max_depth)
+
+
+def auto_disagreement(views, strides, cfg) -> float:
+    """``surface="auto"``'s measurement: the views' depth disagreement (``depth_agreement``), metres."""
+    params = surface_params(cfg)
+    return depth_disagreement(views, strides, params.truncation, params.min_depth, params.max_depth).sigma
+
+
+def surface_points(views, P, C, pix_list, offsets, strides, cfg, sigma=None):
     """The fusion's hook (``pointcloud.fuse_views`` with ``surface`` "tsdf" or "auto").
 
-    ``surface="auto"`` measures the views' depth disagreement (``depth_agreement``) and runs
-    the surface estimate when it is at least ``cfg.surface_auto_sigma``. Returns ``P``, ``C``,
-    ``pix_list`` and ``offsets`` as ``_snap_and_filter`` does (unchanged when the estimate does not
-    run), the ``SurfaceChoice``, the rim flag of each returned point ((P,) bool, None: no rim voxel)
-    and the voxel of each returned point ((P,) int32 in the fusion's voxel order; None when the
-    estimate did not run or there are no points: the fusion then groups them itself).
+    ``surface="auto"`` measures the views' depth disagreement (``auto_disagreement``, or ``sigma``
+    when the caller measured it already) and runs the surface estimate when it is at least
+    ``cfg.surface_auto_sigma``. Returns ``P``, ``C``, ``pix_list`` and ``offsets`` as
+    ``_snap_and_filter`` does (unchanged when the estimate does not run), the ``SurfaceChoice``,
+    the rim flag of each returned point ((P,) bool, None: no rim voxel) and the voxel of each
+    returned point ((P,) int32 in the fusion's voxel order; None when the estimate did not run
+    or there are no points: the fusion then groups them itself).
     """
-    params = SurfaceParams(voxel_size=cfg.voxel_size, min_points=cfg.surface_min_points, min_depth=cfg.min_depth,
-                           max_depth=cfg.max_depth)
-    sigma = float("nan")
-    if cfg.surface == "auto":
-        sigma = depth_disagreement(views, strides, params.truncation, params.min_depth, params.max_depth).sigma
+    params = surface_params(cfg)
+    if cfg.surface != "auto":
+        sigma = float("nan")
+    else:
+        if sigma is None:
+            sigma = auto_disagreement(views, strides, cfg)
         if not sigma >= cfg.surface_auto_sigma:  # NaN (no overlap between views): nothing to agree on
             return P, C, pix_list, offsets, SurfaceChoice("voxel-mean", sigma), None, None
     out = _snap_and_filter(views, P, C, pix_list, offsets, strides, cfg, params)

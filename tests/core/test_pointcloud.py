@@ -174,3 +174,26 @@ def test_real_samples_fuse(which, request):
     # the scene is a tabletop about a metre across at most
     ext = np.percentile(cloud.points, 99, axis=0) - np.percentile(cloud.points, 1, axis=0)
     assert (ext < 2.5).all()
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(0, 40), per=st.sampled_from([1, 3, 514, 515, 900]))
+def test_packed_colour_sums_equal_the_per_channel_sums(seed, n, per):
+    # Invariant (issue 13, session 6): the fusion's packed colour sums are the per-channel integer
+    # sums, at and above the packing's count limit (514 points per voxel), with a dropped bin n
+    # that overflows the packed fields
+    from clutt3r_core.pointcloud import _COLOUR_PACK_MAX_COUNT, _colour_sums
+
+    rng = np.random.default_rng(seed)
+    vox = np.concatenate([rng.integers(0, max(n, 1), n * 3), np.full(per if n else 0, max(n - 1, 0)),
+                          np.full(2000, n)]).astype(np.intp)
+    rng.shuffle(vox)
+    C = rng.integers(0, 256, (len(vox), 3)).astype(np.uint8)
+    C[vox == n] = 255
+    want = np.stack([np.bincount(vox, weights=C[:, a], minlength=n + 1)[:n] for a in range(3)], axis=1)
+    max_count = int(np.bincount(vox, minlength=n + 1)[:n].max()) if n else 0
+    got = _colour_sums(vox, C, n, max_count)
+    assert got.dtype == np.float64 and got.shape == (n, 3)
+    assert np.array_equal(got, want)
+    if n and per > _COLOUR_PACK_MAX_COUNT:  # the unpacked path was taken too
+        assert max_count > _COLOUR_PACK_MAX_COUNT
