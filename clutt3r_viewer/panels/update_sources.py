@@ -64,7 +64,12 @@ def _text(doc: dict) -> str:
     f = lambda x: "-" if x is None else f"{x:.2f}"  # noqa: E731
     rows = [f"| {r['instance']} | {r['status']} | {f(r['iou_before'])} | {f(r['iou_after'])} |" for r in doc["instances"]]
     return ("| instance | status | IoU before | IoU after |\n| --- | --- | --- | --- |\n" + "\n".join(rows)
-            + f"\n\n{len(doc.get('new_masks', []))} new masks; {doc.get('time_s', 0):.2f} s")
+            + f"\n\n{len(doc.get('new_masks', []))} new masks"
+            # masks that became instances (status "new", views with depth; not drawn in the cloud,
+            # which holds the run's points: their points are in the update's state.npz)
+            + "".join(f"; {len(a)} added as instances {a}" for a in [[m["instance"] for m in doc.get("new_masks", [])
+                                                                       if m.get("instance") is not None]] if a)
+            + f"; {doc.get('time_s', 0):.2f} s")
 
 
 def load_update_frames(run_dir: Path | None, scene: Scene | None) -> tuple[UpdateFrame, ...]:
