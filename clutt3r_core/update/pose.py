@@ -229,7 +229,9 @@ class _Solver:
         self.f_uv = torch.tensor([self.K[0, 0], self.K[1, 1]])
         self.c_uv = torch.tensor([self.K[0, 2], self.K[1, 2]])
         # grid_sample's [-1, 1] coordinates (align_corners=True) as one affine map of (u, v)
-        self.g_scale = torch.tensor([2.0 / (W - 1), 2.0 / (H - 1)])
+        # (float32 values, as the poses were recorded with; held in float64 so that each step's
+        # product does not convert them again: the same products, one op less per step)
+        self.g_scale = torch.tensor([2.0 / (W - 1), 2.0 / (H - 1)], dtype=torch.float32).double()
         self.yaw_mask = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
         self.full_mask = torch.ones(3, dtype=torch.float64)
         self.rot_mask = self.full_mask if cfg.dof == "se3" else self.yaw_mask

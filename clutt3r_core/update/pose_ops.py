@@ -33,6 +33,9 @@ def _near_outside(sil: np.ndarray, flat: np.ndarray, reach: np.ndarray) -> np.nd
     import cv2
 
     src = np.ascontiguousarray(sil).view(np.uint8)
+    if len(reach) and (reach == reach[0]).all():  # one splat radius (most fits): no grouping
+        er = cv2.erode(src, _disk(float(reach[0])), borderType=cv2.BORDER_CONSTANT, borderValue=0)
+        return er.reshape(-1)[flat] == 0
     out = np.empty(len(flat), bool)
     for rv in np.unique(reach):
         sel = reach == rv

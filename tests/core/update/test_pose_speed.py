@@ -144,3 +144,53 @@ def test_zbuf_on_ranks_equals_the_zbuf_on_z(seed: int, n: int, ties: bool) -> No
     finally:
         project._RANK_LIMIT = old
     assert ranked.dtype == direct.dtype == np.float64 and np.array_equal(ranked, direct)
+
+
+def _splat_inputs_reference(points, camera, voxel, scale):
+    """project.splat_inputs' projection and radii as written before the inlined fast path:
+    ``Camera.project`` and ``splat_radius`` (session 6 must equal them bit for bit)."""
+    from clutt3r_core.update.project import splat_radius
+
+    uv, z = camera.project(points)
+    ok = np.isfinite(z) & (z > 1e-6) & np.all(np.isfinite(uv), axis=1)
+    u = np.round(np.where(ok, uv[:, 0], 0)).astype(np.int64)
+    v = np.round(np.where(ok, uv[:, 1], 0)).astype(np.int64)
+    r = splat_radius(np.where(ok, z, np.inf), camera, voxel, scale)
+    ok &= (u + r >= 0) & (u - r < camera.width) & (v + r >= 0) & (v - r < camera.height)
+    return z, u, v, r, ok
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(1, 300), scale=st.sampled_from([1.0, 1.7, 3.0]),
+       near=st.booleans())
+def test_splat_inputs_equal_camera_project_and_splat_radius(seed: int, n: int, scale: float, near: bool) -> None:
+    """The inlined projection and radii of splat_inputs: the same z, u, v, r and ``ok`` as
+    Camera.project + splat_radius, points behind the camera, at z ~ 0, far outside the image
+    and closer than the radius cap included; and the cached camera inverse follows the camera."""
+    from clutt3r_core.scene import Camera
+    from clutt3r_core.update.project import splat_inputs
+    from tests.core.update._scenes import camera as make_camera
+
+    rng = np.random.default_rng(seed)
+    for cam in (make_camera(), make_camera(eye=(0.3, -0.3, 0.5)),
+                Camera(K=np.array([[300.0, 0, 90], [0, 280.0, 70], [0, 0, 1]]), width=180, height=140,
+                       T_world_camera=np.eye(4))):
+        c = cam.T_world_camera[:3, 3]
+        p = c + rng.normal(0, 0.02 if near else 0.4, (n, 3))
+        p[: n // 10] = c  # z = 0 exactly (camera centre)
+        got = splat_inputs(p, cam, 0.005, scale)
+        ref = _splat_inputs_reference(p, cam, 0.005, scale)
+        for a, b in zip(got[:5], ref):
+            assert a.dtype == b.dtype and np.array_equal(a, b)
+
+
+def test_zbuffer_only_splat_has_no_point_buffer() -> None:
+    """with_points=False: the point buffer is all -1 (a read-only view, nothing to allocate)."""
+    from clutt3r_core.update.project import splat
+    from tests.core.update._scenes import camera as make_camera
+
+    cam = make_camera()
+    p = np.random.default_rng(0).normal([0, 0, 0.03], 0.02, (200, 3))
+    s = splat(p, cam, 0.005, with_points=False)
+    assert s.h and s.w and s.point.shape == (s.h, s.w) and (s.point == -1).all()
+    assert np.array_equal(s.zbuf, splat(p, cam, 0.005).zbuf)
