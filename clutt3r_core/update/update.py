@@ -29,6 +29,7 @@ displaced one now stands in front of is occluded (``hidden_by_moved_fraction``).
 
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import replace
 
@@ -47,7 +48,7 @@ from clutt3r_core.update.state import SceneState, moved_points
 from clutt3r_core.update.types import (TAU_SEM_BY_EMBEDDER, InstanceUpdate, NewInstance, NewMask, PoseProblem,
                                        UpdateConfig, UpdateResult)
 
-__all__ = ["update_scene", "UpdateDetails"]
+__all__ = ["update_scene", "UpdateDetails", "prefetch_optimizer"]
 
 
 class UpdateDetails:
@@ -119,6 +120,49 @@ class _LazyOptimizer:
         return self._opt.optimize(problem)
 
 
+_PREFETCH: dict[str, threading.Thread] = {}
+
+
+def prefetch_optimizer(view: View, config: UpdateConfig = UpdateConfig()) -> threading.Thread | None:
+    """Import the pose optimiser's packages (torch: 1.2 s) on a background thread when ``view``
+    will be fitted by silhouette (no depth cues, or ``PoseConfig.refine_registration``), while
+    the caller loads, associates and runs the photometric test; ``update_scene`` starts it, the
+    CLI earlier. Wall clock, not CPU: most of the import holds the GIL, it overlaps the
+    caller's GIL-free work (image decoding, OpenCV, large numpy operations) and the other core.
+    Once per process and backend; any failure is left to the optimiser's construction, which
+    names the missing extra. Returns the thread (None: nothing to prefetch).
+
+    Speculative: an RGB-only update that flags nothing displaced has imported torch for
+    nothing (the thread is a daemon: a process that ends first does not wait for it)."""
+    if config.change.use_depth and view.depth is not None and not config.pose.refine_registration:
+        return None  # the registration moves the instances; torch may never be needed (_LazyOptimizer)
+    with _PREFETCH_LOCK:
+        th = _PREFETCH.get(config.optimizer)
+        if th is None:
+            th = _PREFETCH[config.optimizer] = threading.Thread(
+                target=_import_backend, args=(config.optimizer,), name="clutt3r-prefetch", daemon=True)
+            th.start()
+    return th
+
+
+_PREFETCH_LOCK = threading.Lock()
+
+
+def _import_backend(name: str) -> None:
+    import importlib
+
+    try:
+        from clutt3r_core.registry import REGISTRY
+
+        spec = REGISTRY.get("pose_optimizer", name)
+        for req in spec.requires:
+            importlib.import_module(req.partition("=")[0])
+        if isinstance(spec.factory, str):
+            importlib.import_module(spec.factory.partition(":")[0])
+    except Exception:  # noqa: BLE001 - the construction reports it, naming the extra
+        pass
+
+
 def update_scene(
     state: SceneState,
     view: View,
@@ -138,6 +182,7 @@ def update_scene(
         raise SceneError(f"{view.name or f'frame {view.frame}'}: the post-interaction view has no mask candidates")
     if optimizer is None:
         optimizer = _LazyOptimizer(config)
+        prefetch_optimizer(view, config)
     if embedder is None:
         from clutt3r_core.embeddings import create_embedder
 
