@@ -18,6 +18,7 @@ and are read together; the surface estimate and the rim voxels live in ``surface
 from __future__ import annotations
 
 import math
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Literal, Sequence
 
@@ -475,26 +476,26 @@ def fuse_views(views: Sequence[View], cfg: PointCloudConfig = PointCloudConfig()
         if view.depth is None:
             raise SceneError(f"{view.name or f'frame {view.frame}'}: cannot fuse a view without depth")
     strides = [cfg.pixel_stride or auto_stride(v.camera.height, v.camera.width) for v in views]
-    pool = sigma = None
+    # ours (issue 13): a second thread for work that needs only what is known already; the same
+    # calls on the same inputs, so the same results
+    pool = ThreadPoolExecutor(1)
+    sigma = None
     if cfg.surface == "auto":
-        # ours (issue 13): "auto"'s depth disagreement needs only the views, so it is measured on a
-        # second thread while they are back-projected (the same call: the same sigma)
-        from concurrent.futures import ThreadPoolExecutor
-
+        # "auto"'s depth disagreement needs only the views: measured while they are back-projected
         from clutt3r_core.surface import auto_disagreement
 
-        pool = ThreadPoolExecutor(1)
         sigma = pool.submit(auto_disagreement, views, strides, cfg)
     try:
-        return _fuse(views, strides, cfg, sigma)
+        return _fuse(views, strides, cfg, pool, sigma)
     finally:
-        if pool is not None:  # after an error, the measurement finishes and is dropped
-            pool.shutdown(wait=True)
+        pool.shutdown(wait=True)  # after an error, the thread's work finishes and is dropped
 
 
-def _fuse(views: list[View], strides: list[int], cfg: PointCloudConfig, sigma) -> FusedCloud:
-    """``fuse_views`` of checked views at their pixel strides; ``sigma``: a future of
-    ``surface.auto_disagreement`` with ``surface="auto"``, else None."""
+def _fuse(views: list[View], strides: list[int], cfg: PointCloudConfig, pool: ThreadPoolExecutor,
+          sigma: Future | None) -> FusedCloud:
+    """``fuse_views`` of checked views at their pixel strides, with a one-thread ``pool`` for
+    work beside it; ``sigma``: a future of ``surface.auto_disagreement`` with ``surface="auto"``,
+    else None."""
     pts_list, col_list, pix_list = [], [], []
     for view, s in zip(views, strides):
         pw, pix = _backproject_strided(view, s, cfg)
@@ -554,10 +555,10 @@ def _fuse(views: list[View], strides: list[int], cfg: PointCloudConfig, sigma) -
     denom = np.maximum(cnt, 1)[:, None]
     # np.bincount casts int32 bins to intp on every call: once here for the six sums (issue 13)
     vox_p = vox.astype(np.intp)
-    mean = np.stack([np.bincount(vox_p, weights=P[:, a], minlength=n + 1)[:n] for a in range(3)], axis=1) / denom
+    # the positions' sums on the second thread while the colours' and the pixel maps are made here
+    mean = pool.submit(lambda: np.stack([np.bincount(vox_p, weights=P[:, a], minlength=n + 1)[:n]
+                                         for a in range(3)], axis=1) / denom)
     cmean = _colour_sums(vox_p, C, n, int(cnt.max()) if n else 0) / denom
-    del vox_p
-    del P, C
 
     pixel_pairs = []
     vis = np.zeros((len(views), n + 1), dtype=bool)
@@ -571,6 +572,8 @@ def _fuse(views: list[View], strides: list[int], cfg: PointCloudConfig, sigma) -
         pix_list[i] = None
     del vox
     vis = vis[:, :n]
+    mean = mean.result()  # re-raises the thread's error
+    del vox_p, P, C
 
     normals, neighbours = estimate_normals(mean, cfg.normal_knn, neighbours=True)
     centres = np.stack([v.camera.T_world_camera[:3, 3] for v in views])
