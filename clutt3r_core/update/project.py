@@ -123,8 +123,11 @@ def _zbuf_by_filter(z: np.ndarray, u: np.ndarray, v: np.ndarray, r: np.ndarray, 
         key[order] = np.arange(len(zi), dtype=np.float32)
     else:
         key = zi
+    # "no point" is the rank n (above every rank, exact in float32), so the ranks map back to
+    # z through one lookup with inf appended; the unranked path keeps inf
+    empty = float(len(zi)) if ranked else np.inf
     ri, ui, vi = r[idx], u[idx] - u0, v[idx] - v0
-    best = np.full((h, w), np.inf, key.dtype)
+    best = np.full((h, w), empty, key.dtype)
     rmin = int(ri.min())
     counts = np.bincount(ri - rmin)
     for k in np.flatnonzero(counts):
@@ -133,17 +136,13 @@ def _zbuf_by_filter(z: np.ndarray, u: np.ndarray, v: np.ndarray, r: np.ndarray, 
         uu, vv = ui[g] + rr, vi[g] + rr
         ph, pw = h + 2 * rr, w + 2 * rr
         inside = (uu >= 0) & (uu < pw) & (vv >= 0) & (vv < ph)  # the rest cannot reach the window
-        cz = np.full(ph * pw, np.inf, key.dtype)
+        cz = np.full(ph * pw, empty, key.dtype)
         np.minimum.at(cz, vv[inside] * pw + uu[inside], key[g][inside])
-        er = cv2.erode(cz.reshape(ph, pw), _square(rr), borderType=cv2.BORDER_CONSTANT, borderValue=np.inf)
+        er = cv2.erode(cz.reshape(ph, pw), _square(rr), borderType=cv2.BORDER_CONSTANT, borderValue=empty)
         np.minimum(best, er[rr : rr + h, rr : rr + w], out=best)
     if not ranked:
         return best.reshape(-1)
-    out = np.full(h * w, np.inf)
-    b = best.reshape(-1)
-    hit = np.isfinite(b)
-    out[hit] = zi[order][b[hit].astype(np.int64)]
-    return out
+    return np.append(zi[order], np.inf)[best.reshape(-1).astype(np.int64)]
 
 
 @functools.cache
