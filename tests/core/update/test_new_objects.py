@@ -184,3 +184,24 @@ def test_voxel_mean_is_one_mean_per_occupied_cell(n, voxel, seed):
             sel = np.all(keys == keys[np.argmin(np.linalg.norm(p - q, axis=1))], axis=1)
         assert np.allclose(q, p[sel].mean(axis=0), atol=1e-6)
         assert np.all(np.abs(col.astype(int) - c[sel].mean(axis=0)) <= 0.5 + 1e-9)
+
+
+def test_a_pushed_object_no_fit_explains_is_re_added_where_it_now_stands():
+    # the registration cannot accept any fit (an IoU of 1 with the mask is out of reach) and no region is
+    # searched: the pushed box's old place is empty, so it is reported removed; the mask the
+    # association gave it is unmatched after all and shows what nothing stored explains: the box
+    # comes back as a new instance at its new place (its old id stays removed, never reused)
+    from .test_depth_regions import _pushed
+
+    pts, cols, inst, st, c, T, moved = _pushed(25.0)
+    v = render_view(moved, cols, inst, camera(**CAM), frame=8)
+    cfg = FAST.__class__(association=FAST.association, pose=FAST.pose,
+                         change=ChangeConfig(accept_iou=1.0, accept_iou_hidden=1.0, search_unexplained=False))
+    res = update_scene(st, v, cfg)
+    assert res.record(0).status == "removed" and res.record(1).status == "static"
+    (a,) = res.added
+    assert a.instance == 2 and a.mask_id == 1 and res.record(2).status == "new"
+    assert np.max(cKDTree(moved[inst == 0]).query(a.points)[0]) <= 0.006
+    assert np.mean(cKDTree(a.points).query(_visible(moved[inst == 0], v))[0] <= 0.01) >= 0.9
+    st1 = apply_update(st, res)
+    assert st1.instance_ids.tolist() == [1, 2] and next_instance_id(st1) == 3
