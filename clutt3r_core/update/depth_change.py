@@ -35,8 +35,8 @@ from scipy.spatial import cKDTree
 
 from clutt3r_core.scene import View
 from clutt3r_core.update.associate import Association, project_depth
-from clutt3r_core.update.depth import (PlaceCheck, Registration, explained_pixels, mask_points, place_check,
-                                       register, start_rotations, support_plane, unexplained_regions)
+from clutt3r_core.update.depth import (PlaceCheck, Registration, _consistency, explained_pixels, mask_points,
+                                       place_check, register, start_rotations, support_plane, unexplained_regions)
 from clutt3r_core.update.project import mask_iou, silhouette
 from clutt3r_core.update.types import LOSS_NAMES, PoseResult, PoseTrace, UpdateConfig
 
@@ -60,10 +60,17 @@ class Fit:
     registration: Registration
     iou: float
     region: np.ndarray | None = None
+    pair: tuple[int, ...] = ()
+    """Indices of the two mask candidates whose union is ``region`` (``ChangeConfig.search_mask_pairs``;
+    ``mask_index`` is -1 then): the masks this fit takes, so neither is reported new."""
 
     def target(self, masks) -> np.ndarray:
         """(H, W) bool: the mask or region the instance was registered to."""
         return self.region if self.mask_index < 0 else masks.masks[self.mask_index]
+
+    def mask_indices(self) -> tuple[int, ...]:
+        """The view's mask candidates this fit takes (none for an unexplained region)."""
+        return (self.mask_index,) if self.mask_index >= 0 else self.pair
 
 
 @dataclass(frozen=True, eq=False)
@@ -175,7 +182,81 @@ def depth_changes(state, view: View, config: UpdateConfig, assoc: Association, s
     left = sorted(k for k in moved if k not in fits)
     if cc.search_unexplained and left:
         n_reg += _search_regions(state, view, config, left, moved, fits, taken, occ, starts, overlap)
+        left = [k for k in left if k not in fits]
+    if cc.search_mask_pairs and left:  # last: each pair costs a registration per instance left
+        n_reg += _search_mask_pairs(state, view, config, left, [c for c in cands if c[0] not in used_m], fits, taken,
+                                    occ, starts, overlap)
     return DepthChanges(pc, frozenset(in_place), frozenset(moved), fits, explained, n_reg)
+
+
+def _search_mask_pairs(state, view: View, config: UpdateConfig, left: list[int], cands: list, fits: dict,
+                       taken: list[np.ndarray], occ, starts: np.ndarray, overlap) -> int:
+    """``ChangeConfig.search_mask_pairs``: register the moved instances that no single mask
+    fitted to the union of two unassigned mask candidates (``cands``: (mask index, depth
+    points, extent, unexplained pixels)) whose depth points come within ``region_pair_gap``
+    and that are not one inside the other (a parent and its leaf give no new target), with
+    ``accept_iou_region`` on the union of their unexplained pixels and one object per surface.
+    Accepted fits go into ``fits`` with ``mask_index`` -1, the union as ``region`` and the two
+    masks as ``pair``. Returns the registrations run."""
+    cc = config.change
+    trees = [cKDTree(c[1]) for c in cands]
+    targets, pairs = [], []
+    for a in range(len(cands)):
+        for b in range(a + 1, len(cands)):
+            (ma, pa, _, ra), (mb, pb, _, rb) = cands[a], cands[b]
+            both = np.count_nonzero(ra & rb)
+            if both > 0.5 * min(np.count_nonzero(ra), np.count_nonzero(rb)):
+                continue  # one (mostly) inside the other: their union is one of them
+            if (trees[a].query(pb, distance_upper_bound=cc.region_pair_gap)[0].min() > cc.region_pair_gap
+                    and not _occluded_between(ra, rb, view.depth, pa, pb, view.camera, cc.in_place_tol)):
+                continue
+            pts = np.concatenate([pa, pb])
+            if len(pts) > 250:  # the registration's cost grows with the points: a single mask's budget
+                pts = pts[np.sort(np.random.default_rng(0).choice(len(pts), 250, replace=False))]
+            targets.append((len(targets), pts, float(np.linalg.norm(np.ptp(pts, axis=0))), ra | rb))
+            pairs.append((ma, mb))
+    if not targets:
+        return 0
+    found, n_reg = _register_all(state, view, config, left, targets, starts, occ, lambda k: cc.accept_iou_region)
+    used_k, used_m = set(), set()
+    for score, k, ti, reg, iou in sorted(found, key=lambda f: (-f[0], f[1], f[2])):
+        if k in used_k or used_m & set(pairs[ti]):
+            continue
+        T = reg.T_world
+        q = state.points[state.instance == k].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+        if overlap(q, taken) > cc.max_fit_overlap:
+            continue
+        used_k.add(k)
+        used_m.update(pairs[ti])
+        taken.append(q)
+        fits[k] = Fit(-1, reg, iou, targets[ti][3], pairs[ti])
+    return n_reg
+
+
+def _occluded_between(ma: np.ndarray, mb: np.ndarray, depth: np.ndarray, pa: np.ndarray, pb: np.ndarray, camera,
+                      tol: float) -> bool:
+    """Whether two masks are separated by something in front of both: every valid depth pixel
+    on the straight line between their nearest pixels (outside the two masks) is nearer than
+    the nearer piece's nearest depth point by more than ``tol`` (an occluder split one object
+    in two), and the line crosses at least one such pixel."""
+    va, ua = np.nonzero(ma)
+    vb, ub = np.nonzero(mb)
+    if not len(ua) or not len(ub):
+        return False
+    tb = cKDTree(np.stack([ub, vb], axis=1))
+    dist, j = tb.query(np.stack([ua, va], axis=1))
+    i = int(np.argmin(dist))
+    p0, p1 = np.array([ua[i], va[i]], float), np.array([ub[j[i]], vb[j[i]]], float)
+    n = int(np.ceil(np.linalg.norm(p1 - p0))) + 1
+    line = np.round(p0 + np.linspace(0, 1, n)[:, None] * (p1 - p0)).astype(np.int64)
+    u, v = line[:, 0], line[:, 1]
+    out = ~ma[v, u] & ~mb[v, u]
+    d = depth[v[out], u[out]]
+    d = d[np.isfinite(d) & (d > 0)]
+    if not len(d):
+        return False
+    z_near = min(float(camera.project(pa)[1].min()), float(camera.project(pb)[1].min()))
+    return bool(np.all(d < z_near - tol))
 
 
 def _search_regions(state, view: View, config: UpdateConfig, left: list[int], moved: set, fits: dict,
@@ -256,13 +337,20 @@ def _register_all(state, view: View, config: UpdateConfig, ks: list[int], target
                     continue
             reg = register(model, pts, cam, view.depth, starts=starts, tol=cc.in_place_tol, colors=colors,
                            rgb=view.rgb, photo_weight=config.pose.registration_photo_weight,
-                           tie_margin=config.pose.registration_tie_margin)
+                           tie_margin=config.pose.registration_tie_margin, keep_consistent=cc.registration_keep_consistent)
             n_reg += 1
             if reg is None or reg.fitness < cc.accept_fitness or reg.consistency < cc.accept_consistency:
                 continue
             iou = fit_iou(model, reg.T_world, cam, state.voxel_size, occ, target)
             if iou >= accept_iou(k):
-                found.append((reg.score * iou, k, ti, reg, iou))
+                rank = reg.score * iou
+                if cc.fit_colour_weight and view.rgb is not None:
+                    # two objects of one shape fit one target alike (easy_501: a baseball and an
+                    # orange, 0.77 vs 0.76): their colours on the observed surface tell them apart
+                    photo = _consistency(model, reg.T_world, cam, view.depth, cc.in_place_tol, colors, view.rgb)[1]
+                    if np.isfinite(photo):
+                        rank *= max(0.0, 1.0 - cc.fit_colour_weight * photo)
+                found.append((rank, k, ti, reg, iou))
     return found, n_reg
 
 

@@ -333,6 +333,28 @@ class ChangeConfig:
     region_min_pixels: int = 100
     """Ours, pixels: smaller unexplained regions are not searched (rims of splats and masks;
     the smallest displaced object's region on 300/500/700/900 was several hundred pixels)."""
+    registration_keep_consistent: int = 4
+    """Ours: when the depth registration prunes its 72 starts (after 5 iterations) to the 8 of
+    lowest truncated distance, it also keeps this many of the rest with the highest inlier
+    fraction x free-space consistency. On a partial view many wrong poses fit the few visible
+    faces as closely as the right one; the distance alone pruned every start near a passing
+    pose of easy_303's displaced cube (best kept consistency 0.56; 0.77 with 4 more kept) and
+    near easy_503's true pose (its 180 deg flip won); ~1.1x CPU per registration (docs/update.md,
+    session 6). 0 = distance alone (before)."""
+    fit_colour_weight: float = 1.0
+    """Ours: the accepted fits are assigned greedily by fitness x consistency x IoU x (1 - this x
+    the mean absolute colour difference, 0-1, between the moved instance's points on the
+    observed surface and the new image there). Two objects of one shape fit one target alike
+    (easy_501: the grasped orange and the pushed baseball on the baseball's region, 0.77 vs
+    0.76 without colour); their colours tell them apart. 0 = geometry alone (before)."""
+    search_mask_pairs: bool = True
+    """Ours, with depth: a moved instance that no single mask candidate fits is also registered
+    to the union of two unassigned mask candidates whose depth points come within
+    ``region_pair_gap`` of each other or that something nearer than both separates in the image
+    (an occluder split the object's mask, ``depth_change._occluded_between``: hard_900's long object,
+    halves of IoU 0.46 / 0.42 with its silhouette; registered to both halves' points the ICP
+    reaches 3 deg / 0.7 cm, to either half alone no pose passes), with ``accept_iou_region``
+    (no association says which object is there). Session 6, docs/update.md."""
     use_photo: bool = True
     """Ours, views without depth (or ``use_depth`` False; ``update/photo_change.py``): every
     stored point the new camera sees predicts its pixel's colour; an instance whose informative
@@ -441,7 +463,7 @@ class ChangeConfig:
         # A mistyped fraction (70 for 0.7) or a negative size would silently flag or keep
         # everything; fail at construction naming the field instead.
         fractions = ("tau_iou", "min_fit_iou", "in_place_fraction", "accept_fitness", "accept_consistency",
-                     "accept_iou", "accept_iou_hidden", "accept_iou_region", "min_rest_fraction",
+                     "accept_iou", "accept_iou_hidden", "accept_iou_region", "min_rest_fraction", "fit_colour_weight",
                      "max_fit_overlap", "photo_context_share", "photo_min_informative", "photo_in_place_fraction",
                      "hidden_by_moved_fraction", "photo_gone_fraction", "new_min_unexplained")
         for name in fractions:
@@ -451,7 +473,8 @@ class ChangeConfig:
         for name in ("min_translation", "min_rotation_deg", "in_place_tol", "min_place_points", "photo_tol_min",
                      "photo_tol_sigma", "photo_search_px", "photo_context_radius", "photo_min_points",
                      "photo_fragment_points", "region_min_height", "region_link", "region_min_pixels",
-                     "region_pair_gap", "region_max_targets", "new_min_points"):
+                     "region_pair_gap", "region_max_targets", "new_min_points",
+                     "registration_keep_consistent"):
             v = getattr(self, name)
             if v < 0:
                 raise SceneError(f"ChangeConfig.{name} must be >= 0, got {v}")

@@ -341,7 +341,7 @@ def update_scene(
     if dc is None and cc.hidden_by_moved_fraction < 1.0:
         records = _hidden_by_moved(records, state, proj_all, cam, voxel, scale, cc.hidden_by_moved_fraction,
                                    config.association.nearer_margin)
-    taken = set() if dc is None else {f.mask_index for k, f in dc.fits.items()}
+    taken = set() if dc is None else {mi for f in dc.fits.values() for mi in f.mask_indices()}
     # a mask the association gave to an instance finally reported removed is unmatched after all
     gone = {int(r.instance) for r in records if r.status == "removed"}
     freed = [int(mi) for k, mi in zip(ids, assoc.mask_index) if mi >= 0 and int(k) in gone]
