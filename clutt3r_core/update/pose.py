@@ -210,6 +210,7 @@ class _Solver:
         self.img = torch.tensor(pb.rgb.astype(np.float32) / 255.0).permute(2, 0, 1)[None].double()
         self.mask = pb.mask
         self.occ2d = pb.occluder_depth.astype(np.float64)
+        self.occ_flat = self.occ2d.reshape(-1)
         self.depth = self.depth2d = None if pb.depth is None else pb.depth.astype(np.float64)
         self.mask_area = int(np.count_nonzero(pb.mask))
         # target contour: boundary of the mask eroded by the typical splat radius
@@ -251,10 +252,11 @@ class _Solver:
         torch = self.torch
         theta2 = (w * w).sum(dim=1)
         Kx = (w @ self._gen.T).view(-1, 3, 3)
-        small = theta2.detach() < 1e-12
-        if bool(small.all()):
+        small_np = theta2.detach().numpy() < 1e-12  # the test in numpy: no tensor reductions, no syncs
+        if small_np.all():
             return self._eye + Kx
-        if bool(small.any()):  # safe values in the masked rows: their where() branch is not used
+        if small_np.any():  # safe values in the masked rows: their where() branch is not used
+            small = torch.from_numpy(small_np)
             one = torch.ones_like(theta2)
             th2 = torch.where(small, one, theta2)
             th = th2.sqrt()
@@ -308,8 +310,10 @@ class _Solver:
             inside = sp.centre >= 0
             cflat = np.maximum(sp.centre, 0)
             zb = sp.zbuf.reshape(-1)
-            occ = sp.crop(self.occ2d).reshape(-1)
-            vis = inside & (zn <= zb[cflat] + OCCLUSION_MARGIN) & (zn <= occ[cflat] + OCCLUSION_MARGIN)
+            # the occluders' depth at the centre pixels, read from the full image (the window's
+            # crop is not contiguous: reshaping it copied the whole window every step)
+            occ_c = self.occ_flat[(cflat // sp.w + sp.v0) * self.W + cflat % sp.w + sp.u0] if sp.w else cflat * 0.0
+            vis = inside & (zn <= zb[cflat] + OCCLUSION_MARGIN) & (zn <= occ_c + OCCLUSION_MARGIN)
             sil = sp.silhouette(self.occ2d)
             ious.append(_window_iou(sp, sil, self.mask, self.mask_area) if sp.h and sp.w else 0.0)
             if vis.any():
