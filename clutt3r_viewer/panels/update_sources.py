@@ -30,6 +30,7 @@ import numpy as np
 from clutt3r_core.errors import Clutt3rError
 from clutt3r_core.scene import Scene
 from clutt3r_core.update import InstanceUpdate, PoseResult, UpdateFrame, UpdateResult
+from clutt3r_core.update.types import NewInstance
 from clutt3r_core.update.state import load_pose_traces, state_dirs
 
 from clutt3r_viewer.data import label_colors
@@ -38,7 +39,7 @@ from clutt3r_viewer.layers import register_color_layer
 from clutt3r_viewer.loading import register_update_loader
 
 __all__ = ["load_update_frames", "update_pose_events", "update_motions", "updated_scene", "updated_labels",
-           "UpdateSceneLayer", "GHOST_WHITE"]
+           "added_points", "UpdateSceneLayer", "GHOST_WHITE"]
 
 GHOST_WHITE = 0.75
 """Removed instances' points are drawn as their instance colour blended this much with white."""
@@ -56,8 +57,15 @@ def _result(folder: Path, doc: dict, hw: tuple[int, int]) -> UpdateResult:
             pose = PoseResult(T, float(r["iou_before"] or 0.0), float(r["iou_after"] or 0.0), tr,
                               int(tr.stage.max(initial=0)) + 1, 0.0)
         recs.append(InstanceUpdate(k, r["status"], r["iou_before"], r["iou_after"], T, pose=pose))
+    # instances the update added (status "new"): their points are in the state it saved
+    new_ids = [r.instance for r in recs if r.status == "new"]
+    added = ()
+    if new_ids and (folder / "state.npz").is_file():
+        z = np.load(folder / "state.npz")
+        added = tuple(NewInstance(k, -1, z["points"][z["instance"] == k], z["colors"][z["instance"] == k])
+                      for k in new_ids if np.any(z["instance"] == k))
     return UpdateResult(int(doc["frame"]), tuple(recs), (), np.zeros((len(recs), *hw), bool),
-                        np.full(hw, -1, np.int32), float(doc.get("time_s", 0.0)))
+                        np.full(hw, -1, np.int32), float(doc.get("time_s", 0.0)), added=added)
 
 
 def _text(doc: dict) -> str:
@@ -65,8 +73,8 @@ def _text(doc: dict) -> str:
     rows = [f"| {r['instance']} | {r['status']} | {f(r['iou_before'])} | {f(r['iou_after'])} |" for r in doc["instances"]]
     return ("| instance | status | IoU before | IoU after |\n| --- | --- | --- | --- |\n" + "\n".join(rows)
             + f"\n\n{len(doc.get('new_masks', []))} new masks"
-            # masks that became instances (status "new", views with depth; not drawn in the cloud,
-            # which holds the run's points: their points are in the update's state.npz)
+            # masks that became instances (status "new", views with depth; the Updates tab draws
+            # their points, read from the update's state.npz, as a second cloud: added_points)
             + "".join(f"; {len(a)} added as instances {a}" for a in [[m["instance"] for m in doc.get("new_masks", [])
                                                                        if m.get("instance") is not None]] if a)
             + f"; {doc.get('time_s', 0):.2f} s")
@@ -174,6 +182,31 @@ def updated_scene(data, u: int, idx: np.ndarray, after: bool = True) -> tuple[np
         sel = inst0 == k
         pts[sel] = pts[sel] @ M[k, :3, :3].T + M[k, :3, 3]
     return pts, inst, gone
+
+
+def added_points(data, u: int, after: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """The instances added (status "new") by the updates of ``updated_scene``'s scene (after update
+    ``u``, or just before it): (points (M, 3) float64 world metres, moved by the later updates'
+    motions; instance (M,) int32). Added instances removed by then are left out. They are not in
+    the run's cloud, so the Updates tab draws them as a second point cloud."""
+    n_done = u + 1 if after else u
+    ups = [f for f in data.updates[: max(n_done, 0)]]
+    res = [f.result for f in ups if f.result is not None]
+    if not any(r.added for r in res):
+        return np.zeros((0, 3)), np.zeros(0, np.int32)
+    removed = {r.instance for x in res for r in x.instances if r.status == "removed"}
+    M = update_motions(ups, 0)[len(ups)]
+    pts, inst = [], []
+    for x in res:
+        for a in x.added:
+            if a.instance in removed:
+                continue
+            T = M[a.instance]
+            pts.append(a.points.astype(np.float64) @ T[:3, :3].T + T[:3, 3])
+            inst.append(np.full(len(a.points), a.instance, np.int32))
+    if not pts:
+        return np.zeros((0, 3)), np.zeros(0, np.int32)
+    return np.concatenate(pts), np.concatenate(inst)
 
 
 def updated_labels(data, u: int, idx: np.ndarray, after: bool = True) -> tuple[np.ndarray, np.ndarray]:

@@ -4,7 +4,8 @@ Choosing an update shows the scene after it: the cloud's displaced instances mov
 updated poses (their ``T_world`` composed along the chain) and removed instances turn pale
 where they were last seen (colour layer "update", ``update_sources.UpdateSceneLayer``). The
 "After the update" checkbox switches to the scene just before it (after the previous update),
-so the two can be compared in place.
+so the two can be compared in place. Instances an update added (status "new") are not in the
+run's cloud: they are drawn as a second point cloud ("/updates/added", ``update_sources.added_points``).
 """
 
 from __future__ import annotations
@@ -43,6 +44,8 @@ class UpdatesPanel(Panel):
     after: "viser.GuiCheckboxHandle"
     text: "viser.GuiMarkdownHandle"
     image: "viser.GuiImageHandle | None" = None
+    added: "viser.PointCloudHandle | None" = None
+    """The instances the shown updates added (status "new"): not in the run's cloud (update_sources.added_points)."""
 
     @classmethod
     def available(cls, app: "ViewerApp") -> bool:
@@ -86,6 +89,7 @@ class UpdatesPanel(Panel):
             self.frame.value = u
         if bool(self.after.value) != s.state.update_after:
             self.after.value = s.state.update_after
+        self._draw_added(s)
         if not 0 <= u < len(ups):
             self.text.content = INITIAL
             return
@@ -99,3 +103,21 @@ class UpdatesPanel(Panel):
                     self.image = s.client.gui.add_image(upd.rgb[::step, ::step], format="jpeg")
             else:
                 self.image.image = upd.rgb[::step, ::step]
+
+    def _draw_added(self, s: "Session") -> None:
+        """The added instances of the scene shown (after / before the chosen update), coloured by id."""
+        if self.added is not None:
+            self.added.remove()
+            self.added = None
+        u = s.state.update
+        if s.state.color_mode != "update" or not 0 <= u < len(s.app.data.updates):
+            return
+        from clutt3r_viewer.data import label_colors
+        from clutt3r_viewer.panels.update_sources import added_points
+
+        pts, inst = added_points(s.app.data, u, s.state.update_after)
+        if len(pts):
+            centre = s.app.data.centre
+            self.added = s.client.scene.add_point_cloud(
+                "/updates/added", (pts - centre).astype(np.float32), label_colors(inst), point_size=s.app.point_size,
+                point_shape="rounded", position=centre)

@@ -1,0 +1,106 @@
+"""The Updates tab shows the instances an update added (status "new", session 6): they are not in
+the run's cloud, so the loader reads their points from the saved state and the tab draws them as a
+second point cloud, moved by later updates and gone once removed."""
+
+from __future__ import annotations
+
+import shutil
+from types import SimpleNamespace
+
+import numpy as np
+
+from clutt3r_core.update import InstanceUpdate, UpdateResult
+from clutt3r_core.update.newobj import next_instance_id
+from clutt3r_core.update.state import apply_update, save_state, state_from_segmentation
+from clutt3r_core.update.types import NewInstance
+
+
+def _result(state, frame: int, recs: list, added=()) -> UpdateResult:
+    return UpdateResult(frame, tuple(recs), (), np.zeros((len(recs), 4, 4), bool), np.full((4, 4), -1, np.int32), 0.1,
+                        added=tuple(added))
+
+
+def _chain(tiny_seg, run):
+    """Update 1 adds instance K (a 2 cm cube of points); update 2 moves it 3 cm along x; update 3
+    removes it. Returns (K, its points)."""
+    s0 = state_from_segmentation(tiny_seg, run=run)
+    k = next_instance_id(s0)
+    g = np.arange(0.0, 0.02, 0.005)
+    pts = (np.stack(np.meshgrid(g, g, g), -1).reshape(-1, 3) + tiny_seg.points.mean(axis=0)).astype(np.float32)
+    static = [InstanceUpdate(int(i), "static", 0.9, 0.9, None) for i in s0.instance_ids]
+    r1 = _result(s0, 8, static + [InstanceUpdate(k, "new", None, 0.9, None, 5, "new-depth")],
+                 [NewInstance(k, 5, pts, np.full((len(pts), 3), 200, np.uint8))])
+    s1 = apply_update(s0, r1)
+    save_state(s1, run / "updates" / "01_frame_000008", r1)
+    T = np.eye(4)
+    T[0, 3] = 0.03
+    r2 = _result(s1, 9, [InstanceUpdate(int(i), "static", 0.9, 0.9, None) for i in s1.instance_ids if i != k]
+                 + [InstanceUpdate(k, "displaced", 0.2, 0.9, T)])
+    s2 = apply_update(s1, r2)
+    save_state(s2, run / "updates" / "02_frame_000009", r2)
+    r3 = _result(s2, 10, [InstanceUpdate(int(i), "static", 0.9, 0.9, None) for i in s2.instance_ids if i != k]
+                 + [InstanceUpdate(k, "removed", None, None, None)])
+    save_state(apply_update(s2, r3), run / "updates" / "03_frame_000010", r3)
+    return k, pts
+
+
+def test_added_instances_are_loaded_moved_and_dropped_along_the_chain(tiny_run_dir, tiny_seg, tmp_path):
+    import clutt3r_viewer.panels.update_sources  # noqa: F401  (registers the loader)
+    from clutt3r_viewer.loading import load_viewer_data
+    from clutt3r_viewer.panels.update_sources import added_points
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run_dir, run)
+    k, pts = _chain(tiny_seg, run)
+    d = load_viewer_data(run, images=False)
+    assert [u.frame for u in d.updates] == [8, 9, 10]
+    assert f"| {k} | new |" in d.updates[0].text
+    (a,) = d.updates[0].result.added
+    np.testing.assert_allclose(a.points, pts, atol=1e-6)
+    p, inst = added_points(d, 0)  # after update 1: where it was added
+    np.testing.assert_allclose(p, pts, atol=1e-6)
+    assert np.all(inst == k)
+    assert len(added_points(d, 0, after=False)[0]) == 0  # before update 1: not there yet
+    p, _ = added_points(d, 1)  # after update 2: moved 3 cm along x
+    np.testing.assert_allclose(p - pts, np.tile([0.03, 0.0, 0.0], (len(pts), 1)), atol=1e-6)
+    assert len(added_points(d, 2)[0]) == 0  # after update 3: removed
+    np.testing.assert_allclose(added_points(d, 2, after=False)[0], p, atol=1e-9)
+
+
+def test_updates_tab_draws_the_added_instances(tiny_run_dir, tiny_seg, tmp_path):
+    import clutt3r_viewer.panels.update_sources  # noqa: F401
+    from clutt3r_viewer.loading import load_viewer_data
+    from clutt3r_viewer.panels.updates import UpdatesPanel
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run_dir, run)
+    k, pts = _chain(tiny_seg, run)
+    d = load_viewer_data(run, images=False)
+    drawn = []
+
+    class Handle:
+        def __init__(self, name, points, colors, position):
+            self.args = (name, points, colors, position)
+            drawn.append(self)
+            self.removed = False
+
+        def remove(self):
+            self.removed = True
+
+    scene = SimpleNamespace(add_point_cloud=lambda name, points, colors, position, **kw: Handle(name, points, colors,
+                                                                                                  position))
+    s = SimpleNamespace(state=SimpleNamespace(update=1, update_after=True, color_mode="update"),
+                        app=SimpleNamespace(data=d, point_size=0.004), client=SimpleNamespace(scene=scene))
+    panel = UpdatesPanel.__new__(UpdatesPanel)
+    panel.added = None
+    panel._draw_added(s)
+    (h,) = drawn
+    name, p, cols, position = h.args
+    assert name == "/updates/added" and len(p) == len(pts)
+    np.testing.assert_allclose(p + np.asarray(position), pts + [0.03, 0.0, 0.0], atol=1e-5)
+    s.state.update = 2  # the update that removed it: the cloud goes
+    panel._draw_added(s)
+    assert h.removed and panel.added is None and len(drawn) == 1
+    s.state.update, s.state.color_mode = 0, "instance"  # another colour mode: nothing drawn
+    panel._draw_added(s)
+    assert panel.added is None and len(drawn) == 1
