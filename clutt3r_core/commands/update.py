@@ -107,7 +107,7 @@ def update_command(
         from clutt3r_core.update.overlay import update_overlay
 
         write_png(out / "overlay.png", update_overlay(state, view, result))
-    counts = {s: len(result.by_status(s)) for s in ("static", "displaced", "removed", "occluded")}
+    counts = {s: len(result.by_status(s)) for s in ("static", "displaced", "removed", "occluded", "new")}
     console.print(f"frame {view.frame}: " + ", ".join(f"{n} {s}" for s, n in counts.items())
                   + f", {len(result.new_masks)} new masks; {result.time_s:.2f} s -> {out / 'update.json'}")
     print(json.dumps(result.to_json()))

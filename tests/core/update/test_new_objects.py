@@ -110,7 +110,8 @@ def test_a_removed_id_is_never_reused():
     # update 2: the grasp revealed the third box
     res2 = update_scene(st1, render_view(pts[keep], cols[keep], inst[keep], camera(**CAM), frame=10), FAST)
     assert res2.by_status("new") == (2,)
-    hist = (HistoryEntry(1, 8, (7,), (), np.zeros((0, 4, 4))), HistoryEntry(2, 9, (), (), np.zeros((0, 4, 4)), added=(9,)))
+    none = np.zeros((0, 4, 4))
+    hist = (HistoryEntry(1, 8, (7,), (), none), HistoryEntry(2, 9, (), (), none, added=(9,)))
     assert next_instance_id(SceneState(st.points, st.colors, st.instance, st.instance_ids, st.embeddings,
                                        st.embedder, history=hist)) == 10
 
