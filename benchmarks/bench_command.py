@@ -22,8 +22,10 @@ checkout's virtual environment and ``PYTHONPATH`` set to the tree), it measures:
   base and current runs alternate, so both see the same machine load;
 - core: ``segment(load_scene(SCENE))`` in ``--runs`` fresh processes per tree, alternating
   like the whole command: each makes a first call (it pays the lazy imports: scipy.spatial,
-  and open3d before dfdac67) and one warm call, wall and CPU; medians over the processes;
-  mask generation is not involved (the scenes have mask candidates);
+  and open3d before dfdac67) and one warm call, wall, CPU and the calling thread's own CPU
+  (``time.thread_time``: what no second thread takes over, the core's wall on a machine with
+  a free core for them); medians over the processes; mask generation is not involved (the
+  scenes have mask candidates);
 - same: whether the two trees' run folders hold identical arrays (``instances.npz``,
   ``cloud.npz``, ``trace/trace.npz``; NaN equal to NaN).
 
@@ -122,9 +124,9 @@ from clutt3r_core.pipeline import segment
 scene = load_scene(sys.argv[1])
 out = []
 for _ in range(int(sys.argv[2]) + 1):
-    w, c = time.perf_counter(), time.process_time()
+    w, c, t = time.perf_counter(), time.process_time(), time.thread_time()
     segment(scene)
-    out.append((time.perf_counter() - w, time.process_time() - c))
+    out.append((time.perf_counter() - w, time.process_time() - c, time.thread_time() - t))
 print("CORE=" + json.dumps(out))
 """
 
@@ -316,6 +318,11 @@ def _print_table(results: list[dict], trees: list[str]) -> None:
                  "{:.2f}", t_core)
             line(row["scene"], "core, warm CPU s (median)", {t: med(x[1] for x in c[t]["warm"]) for t in trees},
                  "{:.2f}", t_core)
+            if all(len(x) > 2 for t in trees for x in c[t]["warm"]):
+                # the calling thread's own CPU: the part of the core no second thread takes over, so
+                # about its wall time where a core is idle for the others (session 6)
+                line(row["scene"], "core, warm main-thread CPU s (median)",
+                     {t: med(x[2] for x in c[t]["warm"]) for t in trees}, "{:.2f}", None)
         if "same_outputs" in row:
             print(f"| {row['scene']} | instances, cloud, trace arrays identical to base | {row['same_outputs']} | | | |")
 
