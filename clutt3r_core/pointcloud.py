@@ -410,12 +410,24 @@ def _group_keys(keys: list[np.ndarray], ext: np.ndarray) -> tuple[np.ndarray, np
 
     Returns (inverse (P,) int32 into the distinct voxels, counts (U,) int64), voxels in
     the sorted order of the packed key x + ex * (y + ey * z), as np.unique would give.
-    Two dense passes: (x, y) columns first (a tabletop scene occupies few of them),
-    then (column, z), whose rank order is the same (z, y, x) order.
+    Two dense passes over a pair of axes, then the pair's rank and the third axis: (x, y)
+    columns then (column, z), or (y, z) rows then (x, row); both ranks are that (z, y, x)
+    order. The pair with the smaller grid goes first (ours, session 6): the second pass's grid
+    is then usually smaller too (hard 640x480 seed 0, whose far floor spans 6 x 6 m: 5.9 M
+    cells instead of 15.3 M, 0.060 vs 0.078 s of CPU; the real samples within 2 ms).
     """
     ex, ey, ez = (int(e) for e in ext)
-    if ex * ey <= _DENSE_GRID_CELLS:
-        # int32 arithmetic is exact here: both packed keys stay below _DENSE_GRID_CELLS
+    # int32 arithmetic is exact below: every packed key stays below _DENSE_GRID_CELLS
+    rows_first = ey * ez < ex * ey
+    if rows_first and ey * ez <= _DENSE_GRID_CELLS:
+        row, nrow = _compact(keys[1] + np.int32(ey) * keys[2], ey * ez)
+        if nrow * ex <= _DENSE_GRID_CELLS:
+            row *= np.int32(ex)
+            row += keys[0]
+            inverse, u = _compact(row, nrow * ex)
+            return inverse, np.bincount(inverse, minlength=u)
+        del row
+    if ex * ey <= _DENSE_GRID_CELLS:  # columns first (or the rows' second grid was too large)
         col, ncol = _compact(keys[0] + np.int32(ex) * keys[1], ex * ey)
         if ncol * ez <= _DENSE_GRID_CELLS:
             col += np.int32(ncol) * keys[2]

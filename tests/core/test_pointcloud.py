@@ -197,3 +197,19 @@ def test_packed_colour_sums_equal_the_per_channel_sums(seed, n, per):
     assert np.array_equal(got, want)
     if n and per > _COLOUR_PACK_MAX_COUNT:  # the unpacked path was taken too
         assert max_count > _COLOUR_PACK_MAX_COUNT
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), ext=st.tuples(st.integers(1, 300), st.integers(1, 300), st.integers(1, 300)),
+       n=st.integers(1, 3000))
+def test_group_keys_is_np_unique_whichever_pair_goes_first(seed, ext, n):
+    # Invariant: the voxels come in np.unique's order of the packed key and every point maps to
+    # its own voxel, whichever pair of axes the dense passes take first (or the np.unique fallback)
+    from clutt3r_core.pointcloud import _group_keys
+
+    rng = np.random.default_rng(seed)
+    keys = [rng.integers(0, e, n).astype(np.int32) for e in ext]
+    inverse, counts = _group_keys(keys, np.asarray(ext, np.int64))
+    lin = keys[0].astype(np.int64) + ext[0] * (keys[1].astype(np.int64) + ext[1] * keys[2].astype(np.int64))
+    _, want_inv, want_counts = np.unique(lin, return_inverse=True, return_counts=True)
+    assert np.array_equal(inverse, want_inv.reshape(-1)) and np.array_equal(counts, want_counts)
