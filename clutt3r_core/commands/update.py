@@ -85,9 +85,6 @@ def update_command(
         view = sc.view_by_frame(frame)
         if view.masks is None:
             raise SceneFileError(scene_dir, f"post-interaction frame {frame} has no mask candidates")
-    from clutt3r_core.update.update import prefetch_optimizer, update_scene
-
-    prefetch_optimizer(view, config)  # torch's import overlaps the rest (wall; update.py)
     from clutt3r_core.update.embed import resolve_embedder, with_embedder
 
     name = resolve_embedder(embedder, state)
@@ -98,6 +95,8 @@ def update_command(
     if image is None and frame in done:
         raise Clutt3rError(f"frame {frame} was already applied in this chain (steps {done}); "
                            "pass an earlier state folder as RUN to redo it")
+    from clutt3r_core.update.update import update_scene
+
     with console.status(f"updating from frame {view.frame}"):
         result = update_scene(state, view, config)
     new_state = apply_update(state, result)

@@ -29,7 +29,6 @@ displaced one now stands in front of is occluded (``hidden_by_moved_fraction``).
 
 from __future__ import annotations
 
-import threading
 import time
 from dataclasses import replace
 
@@ -48,7 +47,7 @@ from clutt3r_core.update.state import SceneState, moved_points
 from clutt3r_core.update.types import (TAU_SEM_BY_EMBEDDER, InstanceUpdate, NewInstance, NewMask, PoseProblem,
                                        UpdateConfig, UpdateResult)
 
-__all__ = ["update_scene", "UpdateDetails", "prefetch_optimizer"]
+__all__ = ["update_scene", "UpdateDetails"]
 
 
 class UpdateDetails:
@@ -73,6 +72,16 @@ def _moved(res, centroid: np.ndarray, iou_before: float, config: UpdateConfig) -
     shift = float(np.linalg.norm(T[:3, :3] @ centroid + T[:3, 3] - centroid))
     angle = float(np.degrees(np.arccos(np.clip((np.trace(T[:3, :3]) - 1) / 2, -1, 1))))
     return res.iou_after >= iou_before + c.min_iou_gain and (shift >= c.min_translation or angle >= c.min_rotation_deg)
+
+
+def _support(state: SceneState, cc) -> np.ndarray | None:
+    """The support plane for ``unfitted_presence``'s test (``ChangeConfig.presence_above_support``;
+    None: the plain per-pixel depth test)."""
+    if not cc.presence_above_support:
+        return None
+    from clutt3r_core.update.depth import support_plane
+
+    return support_plane(state.points[state.instance < 0], state.points[state.instance >= 0], cc.in_place_tol)
 
 
 def _iou_without(a: np.ndarray, b: np.ndarray, ignore: np.ndarray) -> float:
@@ -120,48 +129,6 @@ class _LazyOptimizer:
         return self._opt.optimize(problem)
 
 
-_PREFETCH: dict[str, threading.Thread] = {}
-
-
-def prefetch_optimizer(view: View, config: UpdateConfig = UpdateConfig()) -> threading.Thread | None:
-    """Import the pose optimiser's packages (torch: 1.2 s) on a background thread when ``view``
-    will be fitted by silhouette (no depth cues, or ``PoseConfig.refine_registration``), while
-    the caller loads, associates and runs the photometric test; ``update_scene`` starts it, the
-    CLI earlier. Wall clock, not CPU: most of the import holds the GIL, it overlaps the
-    caller's GIL-free work (image decoding, OpenCV, large numpy operations) and the other core.
-    Once per process and backend; any failure is left to the optimiser's construction, which
-    names the missing extra. Returns the thread (None: nothing to prefetch).
-
-    Speculative: an RGB-only update that flags nothing displaced has imported torch for
-    nothing (the thread is a daemon: a process that ends first does not wait for it)."""
-    if config.change.use_depth and view.depth is not None and not config.pose.refine_registration:
-        return None  # the registration moves the instances; torch may never be needed (_LazyOptimizer)
-    with _PREFETCH_LOCK:
-        th = _PREFETCH.get(config.optimizer)
-        if th is None:
-            th = _PREFETCH[config.optimizer] = threading.Thread(
-                target=_import_backend, args=(config.optimizer,), name="clutt3r-prefetch", daemon=True)
-            th.start()
-    return th
-
-
-_PREFETCH_LOCK = threading.Lock()
-
-
-def _import_backend(name: str) -> None:
-    import importlib
-
-    try:
-        from clutt3r_core.registry import REGISTRY
-
-        spec = REGISTRY.get("pose_optimizer", name)
-        for req in spec.requires:
-            importlib.import_module(req.partition("=")[0])
-        if isinstance(spec.factory, str):
-            importlib.import_module(spec.factory.partition(":")[0])
-    except Exception:  # noqa: BLE001 - the construction reports it, naming the extra
-        pass
-
 
 def update_scene(
     state: SceneState,
@@ -182,7 +149,6 @@ def update_scene(
         raise SceneError(f"{view.name or f'frame {view.frame}'}: the post-interaction view has no mask candidates")
     if optimizer is None:
         optimizer = _LazyOptimizer(config)
-        prefetch_optimizer(view, config)
     if embedder is None:
         from clutt3r_core.embeddings import create_embedder
 
@@ -268,7 +234,7 @@ def update_scene(
             if fit is None:  # its old place is seen empty and no mask or region fits it: grasped ...
                 new_mask.pop(k, None)
                 if cc.unfitted_presence and unmatched_status(
-                        view, proj_all, i, config.association)[0] == "static":
+                        view, proj_all, i, config.association, plane=_support(state, cc))[0] == "static":
                     # ... unless its projection's pixels still show it (rule 5's depth presence
                     # test; ChangeConfig.unfitted_presence): the per-point place test was ambiguous
                     records.append(InstanceUpdate(k, "static", iou.get(k), iou.get(k), None, mid,
