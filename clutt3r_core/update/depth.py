@@ -20,7 +20,10 @@ cheaper and sharper tests are available (measured reasons in docs/update.md):
    -> model: every observed point has a partner on the fuller stored cloud, not vice versa),
    started from yaws every 30 deg and from the six ways the object's up axis can point
    (a push can tip an object over: 4 of the 18 generated pairs tilt it by 25-160 deg), all
-   hypotheses iterated together (batched Kabsch). Each result is scored both ways:
+   hypotheses iterated together (batched Kabsch); after 5 iterations the 8 of lowest distance
+   go on, plus ``keep_consistent`` of the rest with the best inlier fraction x free-space
+   consistency (``_consistency_batch``: on a partial view many wrong poses are as close as the
+   right one). Each result is scored both ways:
    ``fitness`` = fraction of the scene points within ``tol`` of the moved model, and
    ``consistency`` = of the moved model's points that the camera would see in front of the
    observed surface or on it, the fraction on it (a pose that puts model points where the

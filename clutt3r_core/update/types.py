@@ -300,6 +300,14 @@ class ChangeConfig:
     instance (26 agree / 14 seen through / 47 nearer, 0.65) is present (it was reported
     removed); hard_503's displaced object (0.48, no fit) is present too (static instead of
     removed: both wrong, static keeps the object)."""
+    presence_above_support: bool = True
+    """Ours, with depth: in ``unfitted_presence``'s presence test a pixel agrees only when its
+    new depth point is nearer, in height above the support plane (``depth.support_plane``), to
+    the stored point than to the plane: a thin object (1.7-2.6 cm) grasped off the table leaves
+    the table within ``presence_depth_tol`` (2 cm) of its stored surface, which the plain test
+    took for the object (easy_703: 100 % of its pixels "present", intermediate_703: 74 %; with
+    the plane 0 % for both; hard_900's static instance 58 % either way). docs/update.md,
+    session 6: false static / missed removals."""
     search_unexplained: bool = True
     """Ours, with depth: moved instances that no mask candidate fits are registered to the
     regions of new depth that nothing stored explains (``depth.unexplained_regions``), with the
@@ -349,9 +357,10 @@ class ChangeConfig:
     0.76 without colour); their colours tell them apart. 0 = geometry alone (before)."""
     search_mask_pairs: bool = True
     """Ours, with depth: a moved instance that no single mask candidate fits is also registered
-    to the union of two unassigned mask candidates whose depth points come within
-    ``region_pair_gap`` of each other or that something nearer than both separates in the image
-    (an occluder split the object's mask, ``depth_change._occluded_between``: hard_900's long object,
+    to the union of two unassigned mask candidates that something nearer than both separates in
+    the image (an occluder split the object's mask, ``depth_change._occluded_between``; touching
+    masks are most of the time two objects, and the region search pairs touching unexplained
+    regions already): hard_900's long object,
     halves of IoU 0.46 / 0.42 with its silhouette; registered to both halves' points the ICP
     reaches 3 deg / 0.7 cm, to either half alone no pose passes), with ``accept_iou_region``
     (no association says which object is there). Session 6, docs/update.md."""
