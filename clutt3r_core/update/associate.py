@@ -159,11 +159,15 @@ class Association:
 
 
 def unmatched_status(view: View, proj: Projection, i: int, cfg: AssociationConfig,
-                     photo: str = "") -> tuple[str, str]:
+                     photo: str = "", plane: np.ndarray | None = None) -> tuple[str, str]:
     """Rule 5 for instance ``proj.ids[i]``: (status, how) = ("occluded" | "static" | "removed",
     "" or "present-depth" / "present-colour" / "present-photo"). ``photo``: the photometric
     verdict of a view without depth ("in-place", "present" (judged, between the in-place and
-    the gone fractions), "gone" or "" = not judged)."""
+    the gone fractions), "gone" or "" = not judged). ``plane``: [nx, ny, nz, d] of the support
+    plane (``depth.support_plane``), or None; with depth, a pixel then agrees only when its new
+    depth point is nearer, in height above the plane, to the stored point than to the plane
+    (``ChangeConfig.presence_above_support``: the table a thin grasped object stood on lies
+    within ``presence_depth_tol`` of the object's stored surface)."""
     masks = view.masks
     if proj.n_points is not None and proj.n_points[i] < cfg.min_points:
         return "occluded", "too-small"
@@ -186,7 +190,14 @@ def unmatched_status(view: View, proj: Projection, i: int, cfg: AssociationConfi
         if ok.sum() >= cfg.min_area_px:
             if np.mean(d[ok] < z[ok] - cfg.nearer_margin) > 0.5:
                 return "occluded", ""
-            if np.mean(np.abs(d[ok] - z[ok]) <= cfg.presence_depth_tol) >= cfg.presence_fraction:
+            agree = np.abs(d[ok] - z[ok]) <= cfg.presence_depth_tol
+            if plane is not None:
+                vs, us = np.nonzero(sel)
+                vs, us = vs[ok], us[ok]
+                h_new = view.camera.pixels_to_world(us, vs, d[ok]) @ plane[:3] + plane[3]
+                h_old = view.camera.pixels_to_world(us, vs, z[ok]) @ plane[:3] + plane[3]
+                agree &= np.abs(h_new - h_old) < np.abs(h_new)  # the stored surface explains it, not the table
+            if np.mean(agree) >= cfg.presence_fraction:
                 return "static", "present-depth"
     elif photo == "gone":
         return "removed", ""
