@@ -74,16 +74,6 @@ def _moved(res, centroid: np.ndarray, iou_before: float, config: UpdateConfig) -
     return res.iou_after >= iou_before + c.min_iou_gain and (shift >= c.min_translation or angle >= c.min_rotation_deg)
 
 
-def _support(state: SceneState, cc) -> np.ndarray | None:
-    """The support plane for ``unfitted_presence``'s test (``ChangeConfig.presence_above_support``;
-    None: the plain per-pixel depth test)."""
-    if not cc.presence_above_support:
-        return None
-    from clutt3r_core.update.depth import support_plane
-
-    return support_plane(state.points[state.instance < 0], state.points[state.instance >= 0], cc.in_place_tol)
-
-
 def _iou_without(a: np.ndarray, b: np.ndarray, ignore: np.ndarray) -> float:
     keep = ~ignore
     return mask_iou(a & keep, b & keep)
@@ -142,7 +132,20 @@ def update_scene(
 
     optimizer: a ``PoseOptimizer`` (default: the registry's ``config.optimizer`` built with
     ``config.pose``); embedder: a ``MaskEmbedder`` (default: ``state.embedder``).
+
+    numpy's BLAS runs on one thread for the call (threadpoolctl; restored after), as in
+    ``pipeline.segment``: the products here are (N, 3) x (3, 3) projections of the whole scene,
+    where OpenBLAS's second thread only spins (ours: 48 vs 4 ms of CPU for 110 k points on the
+    loaded 2-core machine; the row split gives the same values, docs/update.md session 6).
     """
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(1, user_api="blas"):
+        return _update_scene(state, view, config, optimizer=optimizer, embedder=embedder, details=details)
+
+
+def _update_scene(state: SceneState, view: View, config: UpdateConfig, *, optimizer, embedder,
+                  details: UpdateDetails | None) -> UpdateResult:
     t0 = time.perf_counter()
     if view.masks is None:
         raise SceneError(f"{view.name or f'frame {view.frame}'}: the post-interaction view has no mask candidates")
@@ -233,7 +236,7 @@ def update_scene(
             if fit is None:  # its old place is seen empty and no mask or region fits it: grasped ...
                 new_mask.pop(k, None)
                 if cc.unfitted_presence and unmatched_status(
-                        view, proj_all, i, config.association, plane=_support(state, cc))[0] == "static":
+                        view, proj_all, i, config.association)[0] == "static":
                     # ... unless its projection's pixels still show it (rule 5's depth presence
                     # test; ChangeConfig.unfitted_presence): the per-point place test was ambiguous
                     records.append(InstanceUpdate(k, "static", iou.get(k), iou.get(k), None, mid,
