@@ -74,6 +74,16 @@ def _moved(res, centroid: np.ndarray, iou_before: float, config: UpdateConfig) -
     return res.iou_after >= iou_before + c.min_iou_gain and (shift >= c.min_translation or angle >= c.min_rotation_deg)
 
 
+def _support(state: SceneState, cc) -> np.ndarray | None:
+    """The support plane for ``unfitted_presence``'s test (``ChangeConfig.presence_above_support``;
+    None: the plain per-pixel depth test)."""
+    if not cc.presence_above_support:
+        return None
+    from clutt3r_core.update.depth import support_plane
+
+    return support_plane(state.points[state.instance < 0], state.points[state.instance >= 0], cc.in_place_tol)
+
+
 def _iou_without(a: np.ndarray, b: np.ndarray, ignore: np.ndarray) -> float:
     keep = ~ignore
     return mask_iou(a & keep, b & keep)
@@ -236,7 +246,7 @@ def _update_scene(state: SceneState, view: View, config: UpdateConfig, *, optimi
             if fit is None:  # its old place is seen empty and no mask or region fits it: grasped ...
                 new_mask.pop(k, None)
                 if cc.unfitted_presence and unmatched_status(
-                        view, proj_all, i, config.association)[0] == "static":
+                        view, proj_all, i, config.association, plane=_support(state, cc))[0] == "static":
                     # ... unless its projection's pixels still show it (rule 5's depth presence
                     # test; ChangeConfig.unfitted_presence): the per-point place test was ambiguous
                     records.append(InstanceUpdate(k, "static", iou.get(k), iou.get(k), None, mid,
