@@ -22,7 +22,11 @@ in CPU seconds (``time.process_time``: on the project's shared 2-core machine wa
   round the trees and the (light, builtin) embeddings run on a second thread beside the fusion
   and super-voxels: their rows are that thread's own wall seconds, and the CPU of the
   ``pointcloud`` and ``supervoxels`` rows (process-wide ``time.process_time``) includes what
-  that thread spent meanwhile; the warm call's total is exact either way;
+  that thread spent meanwhile; the warm call's total is exact either way. Since session 6 more
+  work runs beside: auto's depth disagreement and the voxel position sums (in ``pointcloud``),
+  the support's plane fits and every view's mask hits (in ``supervoxels``; the hits' own wall
+  CPU seconds are added to the ``occupancy`` row); ``warm call, main thread`` is the calling
+  thread's own CPU (``time.thread_time``), the part no second thread takes over;
 
 medians over the processes, and the current / base ratio. Not a unit test: the numbers depend
 on the machine and its load; the instance labels are checked equal (``same``).
@@ -81,11 +85,12 @@ trace.StageClock.__call__ = _cpu_stage
 scene = load_scene(sys.argv[1])
 c2 = time.process_time()
 segment(scene)
-c3 = time.process_time()
+c3, t3 = time.process_time(), time.thread_time()
 seg = segment(scene)
-c4 = time.process_time()
+c4, t4 = time.process_time(), time.thread_time()
 out = {"import": c1 - c0, "load_scene": c2 - c1, "first call - warm call": (c3 - c2) - (c4 - c3),
-       "warm call": c4 - c3, "stages": {t.stage: t.seconds for t in seg.trace.timings},
+       "warm call": c4 - c3, "warm call, main thread": t4 - t3,
+       "stages": {t.stage: t.seconds for t in seg.trace.timings},
        "instance": seg.instance.tolist()}
 print("STAGES=" + json.dumps(out))
 """
@@ -127,6 +132,8 @@ def main() -> None:
         rows = ["import", "load_scene", "first call - warm call"]
         stages = list(runs["current"][0]["stages"])
         rows += [f"stage {s}" for s in stages] + ["warm call"]
+        if all("warm call, main thread" in m for r in runs.values() for m in r):
+            rows.append("warm call, main thread")
 
         def med(name: str, row: str) -> float:
             def get(m: dict) -> float:

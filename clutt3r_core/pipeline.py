@@ -181,10 +181,12 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
         return tr, embed(tr[2]), t1 - t0, time.perf_counter() - t1
 
     def all_hits(beside, cloud) -> tuple:
-        """Every view's ``mask_voxel_hits`` (the trees' candidate order) and their wall seconds."""
+        """Every view's ``mask_voxel_hits`` (the trees' candidate order) and this thread's CPU
+        seconds for them (its wall seconds would count the wait for a core while the super-voxels
+        run: about its CPU on a machine with a free core, twice that on a busy one)."""
         nodes_masks = beside.result()[0][2]  # done: this pool's one thread ran it first
-        t0 = time.perf_counter()
-        return [mask_voxel_hits(cloud, vi, m) for vi, m in enumerate(nodes_masks)], time.perf_counter() - t0
+        t0 = time.thread_time()
+        return [mask_voxel_hits(cloud, vi, m) for vi, m in enumerate(nodes_masks)], time.thread_time() - t0
 
     # ours (issue 13): a light embedder (``beside_fusion``) and the trees it needs run on a
     # second thread while the point cloud is fused and clustered (mostly one thread): the same
@@ -241,7 +243,7 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
                                config.grouping.duplicate_iou, config.trees.tau_contain)
         nodes = NodeTable(nodes.frame, nodes.view, nodes.mask_id, nodes.parent, nodes.is_leaf & ~dups.shadow,
                           background)
-    if t_hits:  # the stage's time: here, plus the hits' own wall seconds on the second thread
+    if t_hits:  # the stage's time: here, plus the hits' CPU seconds on the second thread
         timer.items[-1] = StageTiming("occupancy", timer.items[-1].seconds + t_hits)
     tick("embeddings + leaf graph")
 
