@@ -62,7 +62,8 @@ class UpdateDetails:
     """The photometric in-place test when it ran (no depth cues, ``ChangeConfig.use_photo``)."""
     photo_verdict: dict | None = None
     """instance id -> "in-place" / "present" (between) / "gone" for the judged instances,
-    "fragment" for unjudged ones under ``ChangeConfig.photo_fragment_points``."""
+    "fragment" for unjudged ones under ``ChangeConfig.photo_fragment_points``, "hidden" / "agree"
+    for other unjudged ones (``ChangeConfig.photo_unjudged_rules``)."""
 
 
 def _moved(res, centroid: np.ndarray, iou_before: float, config: UpdateConfig) -> bool:
@@ -193,6 +194,11 @@ def _update_scene(state: SceneState, view: View, config: UpdateConfig, *, optimi
                             else "gone" if f <= cc.photo_gone_fraction else "present")
             elif proj_all.n_points[i] < cc.photo_fragment_points:
                 photo[k] = "fragment"  # ChangeConfig.photo_fragment_points
+            elif cc.photo_unjudged_rules and pc.visible[pc.index(k)] < cc.photo_min_points:
+                photo[k] = "hidden"  # the stored scene, background included, hides it from this camera
+            elif cc.photo_unjudged_rules and pc.informative[pc.index(k)] >= cc.photo_min_points and (
+                    pc.fraction(k) >= cc.photo_in_place_fraction):
+                photo[k] = "agree"  # enough informative points agree; too few of its visible ones are informative
         if details is not None:
             details.photo, details.photo_verdict = pc, photo
     assoc = associate(view, proj_all, state.embeddings, mask_emb, config.association, tree=tree, photo=photo)
