@@ -35,7 +35,7 @@ Usage::
 
     .venv/bin/python benchmarks/bench_update.py --out /tmp/bench_update [--pairs 12] [--seed0 100] \
         [--embedder run] [--no-depth] [--no-depth-cues] [--refine-registration] [--no-photo] [--tilt-starts] \
-        [--no-region-search] [--no-unfitted-presence]
+        [--no-region-search] [--no-unfitted-presence] [--registration-before]
 
 Scenes and runs are cached under ``--out`` (delete to regenerate). Prints a markdown table and
 writes ``results.json`` and one overlay PNG per pair.
@@ -385,6 +385,9 @@ def main() -> None:
                     help="ChangeConfig.unfitted_presence=False: a moved instance without a fit is removed")
     ap.add_argument("--no-new-objects", action="store_true",
                     help="ChangeConfig.new_objects=False: new masks are reported, not added")
+    ap.add_argument("--registration-before", action="store_true",
+                    help="session 6's registration options off: registration_keep_consistent=0, "
+                         "fit_colour_weight=0, search_mask_pairs=False")
     ap.add_argument("--tag", default="", help="suffix of results_<tag>.json")
     a = ap.parse_args()
     cfg = UpdateConfig(change=ChangeConfig(verify=not a.no_verify, min_fit_iou=a.min_fit_iou,
@@ -393,7 +396,9 @@ def main() -> None:
                                            unfitted_presence=not a.no_unfitted_presence,
                                            # an older checkout (the "before" of an A/B) has no such field
                                            **({"new_objects": not a.no_new_objects}
-                                              if hasattr(ChangeConfig, "new_objects") else {})),
+                                              if hasattr(ChangeConfig, "new_objects") else {}),
+                                           **({"registration_keep_consistent": 0, "fit_colour_weight": 0.0,
+                                               "search_mask_pairs": False} if a.registration_before else {})),
                        pose=replace(PoseConfig(), dof=a.dof, early_exit=not a.no_early_exit,
                                     refine_registration=a.refine_registration,
                                     registration_photo_weight=a.photo_weight,
