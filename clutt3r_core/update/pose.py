@@ -336,7 +336,7 @@ class _Solver:
                 dval.append(dn[ok])
                 n_d[b] = int(ok.sum())
         self.last_iou = ious
-        seg_c = np.repeat(np.arange(B), n_c)
+        seg_c = np.repeat(np.arange(B), n_c) if B > 1 else None  # _seg_mean reads it for B > 1 only
         # integer indices and index_select: boolean-mask indexing runs a nonzero() and its
         # backward an index_put; each was ~50 us per step
         P = uv.index_select(0, torch.from_numpy(np.concatenate(cidx)))
@@ -348,10 +348,14 @@ class _Solver:
             with torch.no_grad():
                 d = torch.cdist(P, self.C).numpy()
             near_c = d.argmin(axis=1)
-            starts = np.concatenate([[0], np.cumsum(n_c)[:-1]])
-            near_p = np.concatenate([d[o : o + k].argmin(axis=0) + o for o, k in zip(starts, n_c)])
+            if B == 1:  # one row (every step after the probe): no per-row offsets, no repeat
+                near_p, C_rows = d.argmin(axis=0), self.C
+            else:
+                starts = np.concatenate([[0], np.cumsum(n_c)[:-1]])
+                near_p = np.concatenate([d[o : o + k].argmin(axis=0) + o for o, k in zip(starts, n_c)])
+                C_rows = self.C.repeat(B, 1)
             d1 = (P - self.C.index_select(0, torch.from_numpy(near_c))).norm(dim=1)
-            d0 = (P.index_select(0, torch.from_numpy(near_p)) - self.C.repeat(B, 1)).norm(dim=1)
+            d0 = (P.index_select(0, torch.from_numpy(near_p)) - C_rows).norm(dim=1)
             chamfer = (self._seg_mean(d1, seg_c, n_c) + d0.view(B, -1).mean(dim=1)) / self.diag
         else:
             chamfer = torch.zeros(B, dtype=torch.float64)
@@ -361,7 +365,7 @@ class _Solver:
             grid = (uv.index_select(0, iv) * self.g_scale - 1.0)[None, None]
             sampled = torch.nn.functional.grid_sample(self.img, grid, align_corners=True)[0, :, 0].T
             err = (sampled - self.col_all.index_select(0, iv)).abs().mean(dim=1)
-            photo = self._seg_mean(err, np.repeat(np.arange(B), n_v), n_v)
+            photo = self._seg_mean(err, np.repeat(np.arange(B), n_v) if B > 1 else None, n_v)
         else:
             photo = torch.zeros(B, dtype=torch.float64)
         reg_z = (params["t"][:, 2] / cfg.sigma_z) ** 2
