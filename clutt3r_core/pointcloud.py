@@ -11,7 +11,7 @@ projecting anything again.
 Voxel order is the sorted order of the integer voxel keys, so it does not depend on the
 order of the views; voxel means do not either (up to float round-off).
 
-(About 545 lines, on purpose: the config, the cloud type and the fusion share these invariants
+(About 615 lines, on purpose: the config, the cloud type and the fusion share these invariants
 and are read together; the surface estimate and the rim voxels live in ``surface.py`` and ``rim.py``.)
 """
 
@@ -480,6 +480,8 @@ def fuse_views(views: Sequence[View], cfg: PointCloudConfig = PointCloudConfig()
 
     Works on sensor depth (holes = NaN) and dense predicted depth alike. Points outside
     [min_depth, max_depth] are dropped. Raises SceneError for a view without depth.
+    Auto's depth disagreement and the voxel position sums run on a second thread beside the
+    rest (issue 13: the calling thread's share of the core); the results do not depend on it.
     """
     views = list(views)
     if not views:
