@@ -191,7 +191,7 @@ class SuperVoxels:
 
 
 def _knn_edges(
-    points: np.ndarray, k: int, max_dist: float, neighbours: np.ndarray | None = None
+    points: np.ndarray, k: int, max_dist: float, neighbours: np.ndarray | None = None, make_tree=None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Directed k-NN pairs (i, j int32, ||x_i - x_j|| float64) with distance < max_dist, self
     excluded: the pairs of a k-NN query of k + 1 points bounded by max_dist (strictly, as
@@ -207,8 +207,10 @@ def _knn_edges(
     and need only the (k+2)-th and the last entry of the row. Other rows (ties at the cut:
     voxel means on a millimetre depth grid, about 40 of 150 k voxels of sample_seq4) are
     queried as before. The pairs are then those of the query, up to their order within a
-    row (tests/core/test_supervoxels.py).
+    row (tests/core/test_supervoxels.py). ``make_tree``: a callable giving ``knn_tree(points)``
+    (built beside, by the caller), or None to build it here when a query needs it.
     """
+    make_tree = make_tree or (lambda: knn_tree(pts))
     n = points.shape[0]
     kq = min(k + 1, n)
     pts = np.ascontiguousarray(points, np.float64)
@@ -218,7 +220,7 @@ def _knn_edges(
         if not n:
             return np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0)
         rows = np.arange(n, dtype=np.int32)
-        idx = _nearest(knn_tree(pts), pts, pts, rows, kq, bound)
+        idx = _nearest(make_tree(), pts, pts, rows, kq, bound)
         return _pairs(rows, idx, np.sqrt(_sq_dist(pts, rows, idx)), n)
     # the k + 1 candidates, then (when the row has more) the next one and the farthest one
     cols = list(range(kq)) + ([kq, kt - 1] if kt > kq else [])
@@ -249,7 +251,7 @@ def _knn_edges(
         idx[d2[:, :kq] >= bound] = n  # beyond the bound: "no neighbour", as the query reports it
         redo = np.flatnonzero(~exact)
         if len(redo):
-            tree = knn_tree(pts) if tree is None else tree
+            tree = make_tree() if tree is None else tree
             idx[redo] = _nearest(tree, pts, pts[rows[redo]], rows[redo], kq, bound)
             dist[redo] = np.sqrt(_sq_dist(pts, rows[redo], idx[redo]))
         a, b, c = _pairs(rows, idx, dist, n)
@@ -327,11 +329,14 @@ def build_supervoxels(cloud: FusedCloud, cfg: SuperVoxelConfig = SuperVoxelConfi
     q_dist = max(max_dist, 2.0 * cloud.voxel_size) if cfg.support_removal else max_dist
     # ours (issue 13): the support's plane fits need only the cloud, so they run on a second
     # thread while the graph and its components are built here (the same calls on the same
-    # inputs: the same planes); about a third of this stage's CPU on a hard 640x480 scene
+    # inputs: the same planes); about a third of this stage's CPU on a hard 640x480 scene. The
+    # k-d tree for the few rows the neighbour table cannot answer is built there first.
     pool = ThreadPoolExecutor(1) if cfg.support_removal else None
+    tree = pool.submit(knn_tree, pts) if pool is not None else None
     planes = pool.submit(support_planes, cloud, cfg) if pool is not None else None
     try:
-        src, dst, dist = _knn_edges(pts, cfg.knn, q_dist, cloud.neighbours)
+        src, dst, dist = _knn_edges(pts, cfg.knn, q_dist, cloud.neighbours,
+                                    tree.result if tree is not None else None)
         # eq. 1 in blocks of edges: the two gathered (E, 3) normal arrays were this stage's peak
         # memory at 1080p (36 MiB for 1.5 M edges); each edge's value is computed as before
         merge = np.empty(len(src), bool)
