@@ -44,11 +44,10 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage
-from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from clutt3r_core.graph_ops import connected_components
-from clutt3r_core.normals import estimate_normals
+from clutt3r_core.normals import _one_openmp_thread, estimate_normals, knn_tree
 from clutt3r_core.scene import Camera
 from clutt3r_core.update.project import splat
 
@@ -258,6 +257,10 @@ class Registration:
     path_cost: np.ndarray | None = None
     """(I,) metres: mean distance of the scene points to the moved model, truncated at the
     iteration's correspondence radius, after each iteration."""
+    alternatives: tuple = ()
+    """The next-best distinct poses (``register(alternatives=...)``), best rank first, each a
+    ``Registration`` (without alternatives of its own): the acceptance tests after the
+    registration (IoU) may reject this pose and pass one of them (ChangeConfig.registration_alternatives)."""
 
 
 def _kabsch_batch(A: np.ndarray, B: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -327,9 +330,12 @@ def register(model: np.ndarray, scene: np.ndarray, camera: Camera, depth: np.nda
              keep_consistent: int = 0,
              max_model_points: int = 1500, tie_margin: float = 0.03, seed: int = 0,
              colors: np.ndarray | None = None, rgb: np.ndarray | None = None,
-             photo_weight: float = 0.0) -> Registration | None:
+             photo_weight: float = 0.0, alternatives: int = 0) -> Registration | None:
     """Align ``model`` (stored points, old world pose) to ``scene`` (new depth points of a mask)
-    from every start rotation (module docstring, 3). None when there are too few scene points."""
+    from every start rotation (module docstring, 3). None when there are too few scene points.
+    ``alternatives``: also return up to this many next-best poses by rank (fitness x consistency,
+    minus the colour term), skipping any within 2 deg and 5 mm of a pose returned before them
+    (starts that converged to one pose), in ``Registration.alternatives``."""
     if len(scene) < 20 or len(model) < 20:
         return None
     if not photo_weight:  # no colour tie-break: the candidates' colour error would go unused
@@ -340,8 +346,21 @@ def register(model: np.ndarray, scene: np.ndarray, camera: Camera, depth: np.nda
         model = model[keep_idx]
         colors = None if colors is None else np.asarray(colors)[keep_idx]
     cm, cs = model.mean(axis=0), scene.mean(axis=0)
-    tree = cKDTree(model)
+    # pykdtree on one thread (as the normals): the same neighbours and float64 distances as
+    # scipy's cKDTree here, at 0.64x its query CPU (72 starts x 250 scene points on a 507-point
+    # model; the queries are ~65 % of a registration; docs/update.md, session 6 second pass)
+    tree = knn_tree(model)
     normals = estimate_normals(model, 10)  # the fusion's PCA normals, 10 nearest
+    with _one_openmp_thread():
+        return _icp(model, scene, camera, depth, tree, normals, cm, cs, colors, rgb, starts=starts,
+                    iterations=iterations, keep=keep, prune_at=prune_at, tol=tol, keep_consistent=keep_consistent,
+                    tie_margin=tie_margin, photo_weight=photo_weight, alternatives=alternatives)
+
+
+def _icp(model, scene, camera, depth, tree, normals, cm, cs, colors, rgb, *, starts, iterations, keep, prune_at, tol,
+         keep_consistent, tie_margin, photo_weight, alternatives) -> Registration:
+    """``register``'s ICP from every start, prune, and pick (its arguments, the model's k-d tree
+    and normals, the model and scene centroids)."""
     # G maps scene -> model frame: G s = R (s - cs) + cm + t; the start rotation R = S^T
     # (the model turned by S matches the scene, so the scene turned back by S^T matches the model)
     R = np.ascontiguousarray(starts.transpose(0, 2, 1))
@@ -395,7 +414,7 @@ def register(model: np.ndarray, scene: np.ndarray, camera: Camera, depth: np.nda
         rank = float(fitness[s]) * cons - (photo_weight * photo if np.isfinite(photo) else 0.0)
         cands.append((rank, ang, s, T, cons, float(fitness[s]) * cons))
     top = max(c[0] for c in cands)
-    _, _, s, T, cons, score = min((c for c in cands if c[0] >= top - tie_margin), key=lambda c: c[1])
+    pick = min((c for c in cands if c[0] >= top - tie_margin), key=lambda c: c[1])
 
     def motion(Rs: np.ndarray, ts: np.ndarray) -> np.ndarray:
         G = np.eye(4)
@@ -403,7 +422,29 @@ def register(model: np.ndarray, scene: np.ndarray, camera: Camera, depth: np.nda
         G[:3, 3] = cm + ts - Rs @ cs
         return np.linalg.inv(G)
 
-    path = np.stack([motion(a[s], b[s]) for a, b, _ in hist])
-    path[-1] = T
-    return Registration(T, score, float(fitness[s]), cons, float(rmse[s]), len(scene), path,
-                        np.array([c[s] for _, _, c in hist]))
+    def result(c, alt: tuple = ()) -> Registration:
+        _, _, s, T, cons, score = c
+        path = np.stack([motion(a[s], b[s]) for a, b, _ in hist])
+        path[-1] = T
+        return Registration(T, score, float(fitness[s]), cons, float(rmse[s]), len(scene), path,
+                            np.array([c[s] for _, _, c in hist]), alt)
+
+    alt: list = []
+    if alternatives:
+        chosen = [pick]
+        for c in sorted(cands, key=lambda c: (-c[0], c[2])):  # best rank first, ties by start
+            if len(chosen) > alternatives:
+                break
+            if any(_same_pose(c[3], o[3], cm) for o in chosen):
+                continue
+            chosen.append(c)
+        alt = [result(c) for c in chosen[1:]]
+    return result(pick, tuple(alt))
+
+
+def _same_pose(Ta: np.ndarray, Tb: np.ndarray, centre: np.ndarray, deg: float = 2.0, metres: float = 0.005) -> bool:
+    """Whether two motions differ by less than ``deg`` in rotation and move ``centre`` (the
+    model's centroid, world) to places less than ``metres`` apart."""
+    cos = (np.trace(Ta[:3, :3].T @ Tb[:3, :3]) - 1) / 2
+    ca, cb = Ta[:3, :3] @ centre + Ta[:3, 3], Tb[:3, :3] @ centre + Tb[:3, 3]
+    return bool(np.degrees(np.arccos(np.clip(cos, -1, 1))) < deg and np.linalg.norm(ca - cb) < metres)

@@ -339,20 +339,30 @@ def _register_all(state, view: View, config: UpdateConfig, ks: list[int], target
                     continue
             reg = register(model, pts, cam, view.depth, starts=starts, tol=cc.in_place_tol, colors=colors,
                            rgb=view.rgb, photo_weight=config.pose.registration_photo_weight,
-                           tie_margin=config.pose.registration_tie_margin, keep_consistent=cc.registration_keep_consistent)
+                           tie_margin=config.pose.registration_tie_margin, keep_consistent=cc.registration_keep_consistent,
+                           alternatives=cc.registration_alternatives)
             n_reg += 1
-            if reg is None or reg.fitness < cc.accept_fitness or reg.consistency < cc.accept_consistency:
+            if reg is None:
                 continue
-            iou = fit_iou(model, reg.T_world, cam, state.voxel_size, occ, target)
-            if iou >= accept_iou(k):
-                rank = reg.score * iou
-                if cc.fit_colour_weight and view.rgb is not None:
-                    # two objects of one shape fit one target alike (easy_501: a baseball and an
-                    # orange, 0.77 vs 0.76): their colours on the observed surface tell them apart
-                    photo = _consistency(model, reg.T_world, cam, view.depth, cc.in_place_tol, colors, view.rgb)[1]
-                    if np.isfinite(photo):
-                        rank *= max(0.0, 1.0 - cc.fit_colour_weight * photo)
-                found.append((rank, k, ti, reg, iou))
+            # the registration's pick first, then its next-best poses: the first that passes every
+            # acceptance test (ChangeConfig.registration_alternatives; the pick's result is unchanged
+            # when it passes)
+            for reg in (reg,) + reg.alternatives:
+                if reg.fitness < cc.accept_fitness or reg.consistency < cc.accept_consistency:
+                    continue
+                iou = fit_iou(model, reg.T_world, cam, state.voxel_size, occ, target)
+                if iou >= accept_iou(k):
+                    break
+            else:
+                continue
+            rank = reg.score * iou
+            if cc.fit_colour_weight and view.rgb is not None:
+                # two objects of one shape fit one target alike (easy_501: a baseball and an
+                # orange, 0.77 vs 0.76): their colours on the observed surface tell them apart
+                photo = _consistency(model, reg.T_world, cam, view.depth, cc.in_place_tol, colors, view.rgb)[1]
+                if np.isfinite(photo):
+                    rank *= max(0.0, 1.0 - cc.fit_colour_weight * photo)
+            found.append((rank, k, ti, reg, iou))
     return found, n_reg
 
 

@@ -349,6 +349,12 @@ class ChangeConfig:
     pose of easy_303's displaced cube (best kept consistency 0.56; 0.77 with 4 more kept) and
     near easy_503's true pose (its 180 deg flip won); ~1.1x CPU per registration (docs/update.md,
     session 6). 0 = distance alone (before)."""
+    registration_alternatives: int = 3
+    """Ours: the depth registration also returns this many next-best distinct poses (by fitness x
+    consistency); the acceptance tests (fitness, consistency, IoU) take the first that passes, the
+    registration's own pick first. The IoU is tested after the registration, so a higher-ranked
+    pose whose IoU fails hid a passing one (held-out hard_1701's fragment instance was reported
+    removed). 0 = the pick alone (before). Session 6, second pass, docs/update.md."""
     fit_colour_weight: float = 1.0
     """Ours: the accepted fits are assigned greedily by fitness x consistency x IoU x (1 - this x
     the mean absolute colour difference, 0-1, between the moved instance's points on the
@@ -495,7 +501,7 @@ class ChangeConfig:
                      "photo_tol_sigma", "photo_search_px", "photo_context_radius", "photo_min_points",
                      "photo_fragment_points", "region_min_height", "region_link", "region_min_pixels",
                      "region_pair_gap", "region_max_targets", "new_min_points",
-                     "registration_keep_consistent"):
+                     "registration_keep_consistent", "registration_alternatives"):
             v = getattr(self, name)
             if v < 0:
                 raise SceneError(f"ChangeConfig.{name} must be >= 0, got {v}")
