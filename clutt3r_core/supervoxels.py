@@ -271,8 +271,14 @@ def _sq_dist(pts: np.ndarray, rows: np.ndarray, idx: np.ndarray) -> np.ndarray:
     j = np.where(none, 0, idx) if none.any() else idx
     d2 = None
     for c in cols:
-        diff = c[j]
-        diff -= c[rows][:, None]
+        # np.take on a contiguous column: the same values as c[j], faster with int32 indices
+        # (session 6); a strided column (few query rows) is indexed, np.take would copy it whole
+        if c.flags.c_contiguous:
+            diff = np.take(c, j)
+            diff -= np.take(c, rows)[:, None]
+        else:
+            diff = c[j]
+            diff -= c[rows][:, None]
         diff *= diff
         if d2 is None:
             d2 = diff
@@ -342,7 +348,10 @@ def build_supervoxels(cloud: FusedCloud, cfg: SuperVoxelConfig = SuperVoxelConfi
         merge = np.empty(len(src), bool)
         for s in range(0, len(src), _EDGE_BLOCK * 8):
             e = slice(s, s + _EDGE_BLOCK * 8)
-            dot = np.einsum("ij,ij->i", cloud.normals[src[e]], cloud.normals[dst[e]]).astype(np.float64)
+            # np.take of rows: the same rows as normals[src[e]], half the time (session 6: the
+            # eq. 1 test 0.050 -> 0.023 s CPU for 1.5 M edges)
+            dot = np.einsum("ij,ij->i", np.take(cloud.normals, src[e], axis=0),
+                            np.take(cloud.normals, dst[e], axis=0)).astype(np.float64)
             if cfg.absolute_normal_dot:
                 dot = np.abs(dot)
             merge[e] = cfg.alpha * dist[e] + cfg.beta * (1.0 - dot) <= cfg.tau_merge
