@@ -378,7 +378,7 @@ def _compact(lin: np.ndarray, ncells: int) -> tuple[np.ndarray, int]:
     del occ
     lut = np.empty(ncells, dtype=np.int32)
     lut[occupied] = np.arange(len(occupied), dtype=np.int32)
-    return lut[lin], len(occupied)
+    return np.take(lut, lin), len(occupied)  # np.take: lut[lin], a little faster (session 6)
 
 
 def _voxel_keys(P: np.ndarray, voxel_size: float, pad: int = 0) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
@@ -563,7 +563,7 @@ def _fuse(views: list[View], strides: list[int], cfg: PointCloudConfig, pool: Th
     # Dropped voxels map to a trash bin n, so the sums below need no masking.
     remap = np.full(len(counts), n, dtype=np.int32)
     remap[keep] = np.arange(n, dtype=np.int32)
-    vox = remap[inverse]  # (P,) kept voxel of every raw point, n = dropped
+    vox = np.take(remap, inverse)  # (P,) kept voxel of every raw point, n = dropped
     del inverse, remap
     cnt = counts[keep]
     denom = np.maximum(cnt, 1)[:, None]
