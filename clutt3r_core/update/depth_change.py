@@ -40,7 +40,8 @@ from scipy.spatial import cKDTree
 from clutt3r_core.scene import View
 from clutt3r_core.update.associate import Association, project_depth
 from clutt3r_core.update.depth import (PlaceCheck, Registration, _consistency, explained_pixels, mask_points,
-                                       place_check, register, start_rotations, support_plane, unexplained_regions)
+                                       place_check, prepare_model, register, start_rotations, support_plane,
+                                       unexplained_regions)
 from clutt3r_core.update.project import mask_iou, silhouette
 from clutt3r_core.update.types import LOSS_NAMES, PoseResult, PoseTrace, UpdateConfig
 
@@ -328,6 +329,7 @@ def _register_all(state, view: View, config: UpdateConfig, ks: list[int], target
         sel = state.instance == k
         model, colors = state.points[sel].astype(np.float64), state.colors[sel]
         diam = float(np.linalg.norm(np.ptp(model, axis=0)))
+        prepared = None  # register's per-instance work, once for all this instance's targets
         for ti, pts, ext, target in targets:
             if ext > cc.max_extent_ratio * diam + 0.01:
                 continue
@@ -337,7 +339,9 @@ def _register_all(state, view: View, config: UpdateConfig, ks: list[int], target
                 z = max(float(np.min(cam.project(pts)[1])) - diam, 0.05)
                 if cc.accept_iou * np.count_nonzero(target) > np.pi / 4 * (cam.fx * diam / z) * (cam.fy * diam / z):
                     continue
-            reg = register(model, pts, cam, view.depth, starts=starts, tol=cc.in_place_tol, colors=colors,
+            if prepared is None:
+                prepared = prepare_model(model, colors)
+            reg = register(prepared, pts, cam, view.depth, starts=starts, tol=cc.in_place_tol,
                            rgb=view.rgb, photo_weight=config.pose.registration_photo_weight,
                            tie_margin=config.pose.registration_tie_margin, keep_consistent=cc.registration_keep_consistent,
                            alternatives=cc.registration_alternatives)
