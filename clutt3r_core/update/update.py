@@ -258,7 +258,9 @@ def _update_scene(state: SceneState, view: View, config: UpdateConfig, *, optimi
                     records.append(InstanceUpdate(k, "static", iou.get(k), iou.get(k), None, mid,
                                                   "present-depth"))
                     continue
-                records.append(InstanceUpdate(k, "removed", None, None, None, -1, assoc.match[i] or "depth"))
+                # (the association's rule 5 may have said "present-depth" without the support plane)
+                how = assoc.match[i] if assoc.match[i] not in ("", "present-depth") else "depth"
+                records.append(InstanceUpdate(k, "removed", None, None, None, -1, how))
                 continue
             sel = state.instance == k
             m_k = fit.target(masks)

@@ -63,7 +63,7 @@ def test_a_thin_grasped_object_is_removed_not_taken_for_the_table(height):
     assert 2 in d.depth.moved and 2 not in d.depth.fits
     assert off.record(2).status == "static" and off.record(2).match == "present-depth"  # the failure
     res = update_scene(st, v, FAST)
-    assert res.record(2).status == "removed"
+    assert res.record(2).status == "removed" and res.record(2).match != "present-depth"
     assert [res.record(k).status for k in (0, 1)] == ["static", "static"]
 
 
