@@ -387,7 +387,7 @@ def main() -> None:
                     help="ChangeConfig.new_objects=False: new masks are reported, not added")
     ap.add_argument("--registration-before", action="store_true",
                     help="session 6's registration options off: registration_keep_consistent=0, "
-                         "fit_colour_weight=0, search_mask_pairs=False")
+                         "fit_colour_weight=0, search_mask_pairs=False, registration_alternatives=0")
     ap.add_argument("--tag", default="", help="suffix of results_<tag>.json")
     a = ap.parse_args()
     cfg = UpdateConfig(change=ChangeConfig(verify=not a.no_verify, min_fit_iou=a.min_fit_iou,
@@ -398,7 +398,8 @@ def main() -> None:
                                            **({"new_objects": not a.no_new_objects}
                                               if hasattr(ChangeConfig, "new_objects") else {}),
                                            **({"registration_keep_consistent": 0, "fit_colour_weight": 0.0,
-                                               "search_mask_pairs": False} if a.registration_before else {})),
+                                               "search_mask_pairs": False, "registration_alternatives": 0}
+                                              if a.registration_before else {})),
                        pose=replace(PoseConfig(), dof=a.dof, early_exit=not a.no_early_exit,
                                     refine_registration=a.refine_registration,
                                     registration_photo_weight=a.photo_weight,
