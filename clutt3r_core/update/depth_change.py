@@ -157,7 +157,7 @@ def depth_changes(state, view: View, config: UpdateConfig, assoc: Association, s
         cands.append((mi, pts, float(np.linalg.norm(np.ptp(pts, axis=0))), rest))
     starts = start_rotations(config.pose.registration_yaw_step_deg)
     found, n_reg = _register_all(state, view, config, sorted(moved | hidden), cands, starts, occ,
-                                 lambda k: cc.accept_iou if k in moved else cc.accept_iou_hidden)
+                                 lambda k: cc.accept_iou if k in moved else cc.accept_iou_hidden, moved)
     used_k, used_m = set(), set()
     taken: list[np.ndarray] = []  # moved points of the accepted fits (ChangeConfig.max_fit_overlap)
     in_place_tree = cKDTree(state.points[np.isin(state.instance, stay)]) if len(stay) else None
@@ -316,11 +316,13 @@ def _search_regions(state, view: View, config: UpdateConfig, left: list[int], mo
 
 
 def _register_all(state, view: View, config: UpdateConfig, ks: list[int], targets: list, starts: np.ndarray, occ,
-                  accept_iou, area_bound: bool = False) -> tuple[list, int]:
+                  accept_iou, moved=None, area_bound: bool = False) -> tuple[list, int]:
     """Register each instance of ``ks`` to each target (index, (n, 3) depth points, their
     extent, (H, W) bool pixels the fit's IoU is measured on) whose extent its size allows, and
     keep the registrations that pass ``accept_fitness`` / ``accept_consistency`` and reach
-    ``accept_iou(k)``. ``area_bound``: also skip targets too large for the object to reach that
+    ``accept_iou(k)``: the registration's pick, or for the ids in ``moved`` (None: all of
+    ``ks``) the first of its ``registration_alternatives`` next-best poses that passes.
+    ``area_bound``: also skip targets too large for the object to reach that
     IoU (unexplained regions). Returns ([(score x IoU, k, target index, registration, IoU)],
     registrations run)."""
     cc, cam = config.change, view.camera
@@ -341,10 +343,14 @@ def _register_all(state, view: View, config: UpdateConfig, ks: list[int], target
                     continue
             if prepared is None:
                 prepared = prepare_model(model, colors)
+            # next-best poses for moved instances only (their old place is seen empty: they are
+            # somewhere): a hidden one's is a static object's chance to be flagged (hard_902: an
+            # alternative passed accept_iou_hidden on another object's mask, IoU 0.54)
+            alt = cc.registration_alternatives if moved is None or k in moved else 0
             reg = register(prepared, pts, cam, view.depth, starts=starts, tol=cc.in_place_tol,
                            rgb=view.rgb, photo_weight=config.pose.registration_photo_weight,
                            tie_margin=config.pose.registration_tie_margin, keep_consistent=cc.registration_keep_consistent,
-                           alternatives=cc.registration_alternatives)
+                           alternatives=alt)
             n_reg += 1
             if reg is None:
                 continue

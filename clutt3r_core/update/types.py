@@ -354,7 +354,9 @@ class ChangeConfig:
     consistency); the acceptance tests (fitness, consistency, IoU) take the first that passes, the
     registration's own pick first. The IoU is tested after the registration, so a higher-ranked
     pose whose IoU fails hid a passing one (held-out hard_1701's fragment instance was reported
-    removed). 0 = the pick alone (before). Session 6, second pass, docs/update.md."""
+    removed). Moved instances only (old place seen empty): for a hidden one an alternative is a
+    static object's chance to be flagged (hard_902: one passed ``accept_iou_hidden`` on another
+    object's mask). 0 = the pick alone (before). Session 6, second pass, docs/update.md."""
     fit_colour_weight: float = 1.0
     """Ours: the accepted fits are assigned greedily by fitness x consistency x IoU x (1 - this x
     the mean absolute colour difference, 0-1, between the moved instance's points on the
