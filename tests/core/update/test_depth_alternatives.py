@@ -121,3 +121,24 @@ def test_a_pick_that_passes_is_kept_whatever_the_alternatives(monkeypatch):
 def test_registration_alternatives_is_checked():
     with pytest.raises(SceneError, match="registration_alternatives"):
         ChangeConfig(registration_alternatives=-1)
+
+
+def test_only_moved_instances_get_alternatives(monkeypatch):
+    # a hidden (unsure) instance keeps the registration's pick: an alternative is a static
+    # object's chance to be flagged (hard_902)
+    st, v, scene, c, T = _setup(20.0)
+    real, asked = depth_change.register, []
+
+    def spy(model, pts, *a, alternatives=0, **k):
+        asked.append(alternatives)
+        return real(model, pts, *a, alternatives=alternatives, **k)
+
+    monkeypatch.setattr(depth_change, "register", spy)
+    m = v.masks.masks[list(v.masks.ids).index(1)]
+    targets = [(0, scene, float(np.linalg.norm(np.ptp(scene, axis=0))), m)]
+    cfg = UpdateConfig(change=replace(FAST.change, registration_alternatives=3, max_extent_ratio=10.0), pose=FAST.pose)
+    depth_change._register_all(st, v, cfg, [0, 1], targets, start_rotations(30.0), None, lambda k: 0.4, {0})
+    assert asked == [3, 0]
+    asked.clear()
+    depth_change._register_all(st, v, cfg, [0, 1], targets, start_rotations(30.0), None, lambda k: 0.4)
+    assert asked == [3, 3]  # None: every instance (the region and mask-pair searches: moved ones only)
