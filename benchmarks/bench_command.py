@@ -73,6 +73,11 @@ PNGs and run-based set compaction of the mask codes; the later imports beside th
 trees and embeddings beside the fusion and overview.png beside save_run save wall time only
 where a core is idle, which this machine could not show (docs/benchmark.md, "Whole command",
 fourth round).
+Session 6 (the core under 1 s), measured 2026-12-01 03:24-03:29 UTC against 6cc7f43 (load
+5-10), median of 5: hard 640x480 core warm CPU 1.52 / 1.70 s (within the spread), calling
+thread's CPU 0.96 -> 0.71 s, idle-2-core estimate 1.23 -> 1.06 (1.05 -> 0.86 in a run where the
+base's estimate matched its quiet measurement); whole command CPU 2.71 -> 2.54 s, peak 318 -> 283
+MiB; sample_seq4 peak 522 / 536 MiB. Identical arrays (docs/benchmark.md, "Session 6").
 Base and ``--current`` checkouts are ``git worktree``s under ``--work``, kept for the next run
 (``git worktree remove`` them when done).
 
