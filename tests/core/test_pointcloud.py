@@ -213,3 +213,23 @@ def test_group_keys_is_np_unique_whichever_pair_goes_first(seed, ext, n):
     lin = keys[0].astype(np.int64) + ext[0] * (keys[1].astype(np.int64) + ext[1] * keys[2].astype(np.int64))
     _, want_inv, want_counts = np.unique(lin, return_inverse=True, return_counts=True)
     assert np.array_equal(inverse, want_inv.reshape(-1)) and np.array_equal(counts, want_counts)
+
+
+def test_auto_disagreement_beside_the_fusion_surfaces_its_error(monkeypatch):
+    # auto's depth disagreement runs on a second thread (session 6); its error reaches the caller,
+    # and a view without depth is refused before it starts
+    import clutt3r_core.surface as surface
+
+    views = make_views(2)
+
+    def broken(*a, **k):
+        raise RuntimeError("disagreement failed")
+
+    monkeypatch.setattr(surface, "auto_disagreement", broken)
+    with pytest.raises(RuntimeError, match="disagreement failed"):
+        fuse_views(views, PointCloudConfig(surface="auto"))
+    assert fuse_views(views, PointCloudConfig(surface="voxel-mean")).num > 0  # not measured there
+    from dataclasses import replace as dc_replace
+
+    with pytest.raises(SceneError, match="without depth"):
+        fuse_views([views[0], dc_replace(views[1], depth=None)], PointCloudConfig(surface="auto"))

@@ -167,3 +167,27 @@ def test_fused_cloud_carries_the_normals_neighbours_and_supervoxels_are_unchange
     with pytest.raises(SceneError, match="neighbours"):
         FusedCloud(cloud.points, cloud.colors, cloud.normals, cloud.counts, cloud.voxel_size, cloud.frames,
                    cloud.pixel_voxel, neighbours=np.full((cloud.num, 3), cloud.num))
+
+
+def test_support_planes_beside_give_the_planes_in_turn_and_errors_surface(table_box, monkeypatch):
+    # the plane fits run on a second thread (session 6): mark_support with them equals mark_support
+    # fitting them itself, and an error in the fits reaches the caller
+    import clutt3r_core.supervoxels as sv_mod
+    from clutt3r_core.support import mark_support, support_planes
+
+    cloud, sv = table_box
+    cfg = SuperVoxelConfig()
+    src, dst, dist = _knn_edges(cloud.points.astype(np.float64), cfg.knn, 0.02, cloud.neighbours)
+    planes = support_planes(cloud, cfg)
+    assert planes.plane is not None and planes.ground.shape == (cloud.num,) and planes.uvh.shape == (cloud.num, 3)
+    own = mark_support(cloud, sv.labels, sv.num, sv.counts, src, dst, dist, cfg)
+    given_ = mark_support(cloud, sv.labels, sv.num, sv.counts, src, dst, dist, cfg, planes=planes)
+    assert np.array_equal(own[0], given_[0]) and np.array_equal(own[1], given_[1])
+    assert np.array_equal(own[0], sv.support) and np.array_equal(own[1], sv.plane)
+
+    def broken(*a, **k):
+        raise RuntimeError("plane fit failed")
+
+    monkeypatch.setattr(sv_mod, "support_planes", broken)
+    with pytest.raises(RuntimeError, match="plane fit failed"):
+        build_supervoxels(cloud)
