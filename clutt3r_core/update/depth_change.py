@@ -158,7 +158,6 @@ def depth_changes(state, view: View, config: UpdateConfig, assoc: Association, s
     starts = start_rotations(config.pose.registration_yaw_step_deg)
     found, n_reg = _register_all(state, view, config, sorted(moved | hidden), cands, starts, occ,
                                  lambda k: cc.accept_iou if k in moved else cc.accept_iou_hidden, moved)
-    used_k, used_m = set(), set()
     taken: list[np.ndarray] = []  # moved points of the accepted fits (ChangeConfig.max_fit_overlap)
     in_place_tree = cKDTree(state.points[np.isin(state.instance, stay)]) if len(stay) else None
 
@@ -172,18 +171,11 @@ def depth_changes(state, view: View, config: UpdateConfig, assoc: Association, s
     # moved instances first (their old place is seen empty: they are somewhere), then the
     # hidden ones on the masks left (measured on seed 200: one global ranking let a hidden
     # static instance take the displaced object's mask)
-    for score, k, mi, reg, iou in sorted(found, key=lambda f: (f[1] not in moved, -f[0], f[1], f[2])):
-        if k in used_k or mi in used_m:
-            continue
-        T = reg.T_world
-        q = state.points[state.instance == k].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
-        if overlap(q, taken) > cc.max_fit_overlap or (
-                k not in moved and in_place_tree is not None and overlap(q, [], in_place_tree) > cc.max_fit_overlap):
-            continue  # that surface belongs to another object (ChangeConfig.max_fit_overlap)
-        used_k.add(k)
-        used_m.add(mi)
-        taken.append(q)
-        fits[k] = Fit(mi, reg, iou)
+    # (a hidden one's fit on an unmoved instance's surface belongs to that object: max_fit_overlap)
+    used_m = _take_fits(state, found, lambda f: (f[1] not in moved, -f[0], f[1], f[2]), lambda mi: {mi},
+                        lambda mi, reg, iou: Fit(mi, reg, iou), fits, taken, overlap, cc.max_fit_overlap,
+                        lambda k, q: (k not in moved and in_place_tree is not None
+                                      and overlap(q, [], in_place_tree) > cc.max_fit_overlap))
     left = sorted(k for k in moved if k not in fits)
     if cc.search_unexplained and left:
         n_reg += _search_regions(state, view, config, left, moved, fits, taken, occ, starts, overlap)
@@ -221,19 +213,34 @@ def _search_mask_pairs(state, view: View, config: UpdateConfig, left: list[int],
     if not targets:
         return 0
     found, n_reg = _register_all(state, view, config, left, targets, starts, occ, lambda k: cc.accept_iou_region)
-    used_k, used_m = set(), set()
-    for score, k, ti, reg, iou in sorted(found, key=lambda f: (-f[0], f[1], f[2])):
-        if k in used_k or used_m & set(pairs[ti]):
+    _take_fits(state, found, lambda f: (-f[0], f[1], f[2]), lambda ti: set(pairs[ti]),
+               lambda ti, reg, iou: Fit(-1, reg, iou, targets[ti][3], pairs[ti]), fits, taken, overlap,
+               cc.max_fit_overlap)
+    return n_reg
+
+
+def _take_fits(state, found: list, key, takes, make_fit, fits: dict, taken: list[np.ndarray], overlap,
+               max_overlap: float, reject=None) -> set:
+    """Accept the registrations ``found`` ([(rank, k, target index, registration, IoU)], from
+    ``_register_all``) greedily in ``key`` order: one fit per instance, none on a mask or region
+    an accepted fit took (``takes(target index)``: the set of ids it takes), none whose moved
+    points lie on an accepted fit's (``taken``, ``ChangeConfig.max_fit_overlap``) or that
+    ``reject(k, moved points)``. Accepted fits go into ``fits`` (``make_fit(target index,
+    registration, IoU)``) and their moved points into ``taken``. Returns the ids taken."""
+    used_k, used = set(), set()
+    for _, k, ti, reg, iou in sorted(found, key=key):
+        t = takes(ti)
+        if k in used_k or used & t:
             continue
         T = reg.T_world
         q = state.points[state.instance == k].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
-        if overlap(q, taken) > cc.max_fit_overlap:
-            continue
+        if overlap(q, taken) > max_overlap or (reject is not None and reject(k, q)):
+            continue  # that surface belongs to another object
         used_k.add(k)
-        used_m.update(pairs[ti])
+        used |= t
         taken.append(q)
-        fits[k] = Fit(-1, reg, iou, targets[ti][3], pairs[ti])
-    return n_reg
+        fits[k] = make_fit(ti, reg, iou)
+    return used
 
 
 def _occluded_between(ma: np.ndarray, mb: np.ndarray, depth: np.ndarray, pa: np.ndarray, pb: np.ndarray, camera,
@@ -300,18 +307,8 @@ def _search_regions(state, view: View, config: UpdateConfig, left: list[int], mo
     found, n_reg = _register_all(state, view, config, left,
                                  [(ri, pts, ext, m) for ri, (m, pts, ext) in enumerate(targets)], starts, occ,
                                  lambda k: cc.accept_iou_region, area_bound=True)
-    used_k, used_r = set(), set()
-    for score, k, ri, reg, iou in sorted(found, key=lambda f: (-f[0], f[1], f[2])):
-        if k in used_k or ri in used_r:
-            continue
-        T = reg.T_world
-        q = state.points[state.instance == k].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
-        if overlap(q, taken) > cc.max_fit_overlap:
-            continue
-        used_k.add(k)
-        used_r.add(ri)
-        taken.append(q)
-        fits[k] = Fit(-1, reg, iou, targets[ri][0])
+    _take_fits(state, found, lambda f: (-f[0], f[1], f[2]), lambda ri: {ri},
+               lambda ri, reg, iou: Fit(-1, reg, iou, targets[ri][0]), fits, taken, overlap, cc.max_fit_overlap)
     return n_reg
 
 
