@@ -61,9 +61,9 @@ def _result(folder: Path, doc: dict, hw: tuple[int, int]) -> UpdateResult:
     new_ids = [r.instance for r in recs if r.status == "new"]
     added = ()
     if new_ids and (folder / "state.npz").is_file():
-        z = np.load(folder / "state.npz")
-        added = tuple(NewInstance(k, -1, z["points"][z["instance"] == k], z["colors"][z["instance"] == k])
-                      for k in new_ids if np.any(z["instance"] == k))
+        with np.load(folder / "state.npz") as z:  # each z[key] reads the array from the archive again
+            inst, pts, cols = z["instance"], z["points"], z["colors"]
+        added = tuple(NewInstance(k, -1, pts[inst == k], cols[inst == k]) for k in new_ids if np.any(inst == k))
     return UpdateResult(int(doc["frame"]), tuple(recs), (), np.zeros((len(recs), *hw), bool),
                         np.full(hw, -1, np.int32), float(doc.get("time_s", 0.0)), added=added)
 
