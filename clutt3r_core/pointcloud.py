@@ -449,6 +449,12 @@ def _keep_points(P, C, pix_list, offsets, keep):
     return np.compress(keep, P, axis=0), np.compress(keep, C, axis=0), pix_list, offsets
 
 
+def _voxel_sums(vox: np.ndarray, X: np.ndarray, n: int) -> np.ndarray:
+    """(n, 3) float64 sums of the columns of ``X`` (P, 3) per voxel ``vox`` (P,) intp (bin n:
+    dropped points, cut off)."""
+    return np.stack([np.bincount(vox, weights=X[:, a], minlength=n + 1)[:n] for a in range(3)], axis=1)
+
+
 # Bits per channel of the packed colour sums (_colour_sums): 255 x 514 < 2^17, and three fields
 # (51 bits) stay below float64's 53-bit integers.
 _COLOUR_FIELD = 17
@@ -465,7 +471,7 @@ def _colour_sums(vox: np.ndarray, C: np.ndarray, n: int, max_count: int) -> np.n
     same values as summing each channel.
     """
     if max_count > _COLOUR_PACK_MAX_COUNT:
-        return np.stack([np.bincount(vox, weights=C[:, a], minlength=n + 1)[:n] for a in range(3)], axis=1)
+        return _voxel_sums(vox, C, n)
     f = _COLOUR_FIELD
     w = C[:, 0] + C[:, 1] * float(1 << f) + C[:, 2] * float(1 << 2 * f)
     # the dropped points' bin n may hold more than the fields allow: it is cut off unread
@@ -570,8 +576,7 @@ def _fuse(views: list[View], strides: list[int], cfg: PointCloudConfig, pool: Th
     # np.bincount casts int32 bins to intp on every call: once here for the six sums (issue 13)
     vox_p = vox.astype(np.intp)
     # the positions' sums on the second thread while the colours' and the pixel maps are made here
-    mean = pool.submit(lambda: np.stack([np.bincount(vox_p, weights=P[:, a], minlength=n + 1)[:n]
-                                         for a in range(3)], axis=1) / denom)
+    mean = pool.submit(lambda: _voxel_sums(vox_p, P, n) / denom)
     cmean = _colour_sums(vox_p, C, n, int(cnt.max()) if n else 0) / denom
 
     pixel_pairs = []
