@@ -497,18 +497,16 @@ def fuse_views(views: Sequence[View], cfg: PointCloudConfig = PointCloudConfig()
             raise SceneError(f"{view.name or f'frame {view.frame}'}: cannot fuse a view without depth")
     strides = [cfg.pixel_stride or auto_stride(v.camera.height, v.camera.width) for v in views]
     # ours (issue 13): a second thread for work that needs only what is known already; the same
-    # calls on the same inputs, so the same results
-    pool = ThreadPoolExecutor(1)
-    sigma = None
-    if cfg.surface == "auto":
-        # "auto"'s depth disagreement needs only the views: measured while they are back-projected
-        from clutt3r_core.surface import auto_disagreement
+    # calls on the same inputs, so the same results. Leaving the block (after an error too) waits
+    # for the thread's work, which an error then drops.
+    with ThreadPoolExecutor(1) as pool:
+        sigma = None
+        if cfg.surface == "auto":
+            # "auto"'s depth disagreement needs only the views: measured while they are back-projected
+            from clutt3r_core.surface import auto_disagreement
 
-        sigma = pool.submit(auto_disagreement, views, strides, cfg)
-    try:
+            sigma = pool.submit(auto_disagreement, views, strides, cfg)
         return _fuse(views, strides, cfg, pool, sigma)
-    finally:
-        pool.shutdown(wait=True)  # after an error, the thread's work finishes and is dropped
 
 
 def _fuse(views: list[View], strides: list[int], cfg: PointCloudConfig, pool: ThreadPoolExecutor,
