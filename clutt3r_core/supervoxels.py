@@ -210,10 +210,10 @@ def _knn_edges(
     row (tests/core/test_supervoxels.py). ``make_tree``: a callable giving ``knn_tree(points)``
     (built beside, by the caller), or None to build it here when a query needs it.
     """
-    make_tree = make_tree or (lambda: knn_tree(pts))
     n = points.shape[0]
     kq = min(k + 1, n)
     pts = np.ascontiguousarray(points, np.float64)
+    make_tree = make_tree or (lambda: knn_tree(pts))
     bound = max_dist * max_dist
     kt = 0 if neighbours is None or neighbours.shape[0] != n else neighbours.shape[1]
     if not (n and (kt > kq or kt == n >= kq)):  # no table, or too short a row to tell
