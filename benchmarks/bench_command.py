@@ -336,15 +336,14 @@ def _print_table(results: list[dict], trees: list[str]) -> None:
                  "{:.2f}", t_core)
             line(row["scene"], "core, warm CPU s (median)", {t: med(x[1] for x in c[t]["warm"]) for t in trees},
                  "{:.2f}", t_core)
-            if all(len(x) > 3 for t in trees for x in c[t]["warm"]):
-                # the calling thread's own CPU: the part of the core no second thread takes over;
-                # on an idle 2-core machine the wall is about that plus half the normals' CPU (their
-                # blocks run on two threads while the caller waits): session 6, checked against the
-                # quiet base measurement (1.05 estimated, 1.06-1.09 s measured)
-                line(row["scene"], "core, warm main-thread CPU s (median)",
-                     {t: med(x[2] for x in c[t]["warm"]) for t in trees}, "{:.2f}", None)
-                line(row["scene"], "core, warm wall on 2 idle cores, estimate s (main + normals / 2)",
-                     {t: med(x[2] + x[3] / 2 for x in c[t]["warm"]) for t in trees}, "{:.2f}", t_core)
+            # the calling thread's own CPU: the part of the core no second thread takes over;
+            # on an idle 2-core machine the wall is about that plus half the normals' CPU (their
+            # blocks run on two threads while the caller waits): session 6, checked against the
+            # quiet base measurement (1.05 estimated, 1.06-1.09 s measured)
+            line(row["scene"], "core, warm main-thread CPU s (median)",
+                 {t: med(x[2] for x in c[t]["warm"]) for t in trees}, "{:.2f}", None)
+            line(row["scene"], "core, warm wall on 2 idle cores, estimate s (main + normals / 2)",
+                 {t: med(x[2] + x[3] / 2 for x in c[t]["warm"]) for t in trees}, "{:.2f}", t_core)
         if "same_outputs" in row:
             print(f"| {row['scene']} | instances, cloud, trace arrays identical to base | {row['same_outputs']} | | | |")
 
