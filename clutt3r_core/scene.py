@@ -9,6 +9,7 @@ coordinates, metres, world z up, image coordinates (u, v) = (column, row).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Iterable
 
@@ -107,15 +108,16 @@ class Camera:
     def cy(self) -> float:
         return float(self.K[1, 2])
 
-    @property
+    @cached_property
     def T_camera_world(self) -> np.ndarray:
-        """(4, 4) world-to-camera transform (the inverse of ``T_world_camera``)."""
+        """(4, 4) world-to-camera transform (the inverse of ``T_world_camera``), read-only:
+        computed once per camera (the update's pose fit projects into one camera hundreds of times)."""
         R = self.T_world_camera[:3, :3]
         t = self.T_world_camera[:3, 3]
         T = np.eye(4)
         T[:3, :3] = R.T
         T[:3, 3] = -R.T @ t
-        return T
+        return _frozen_array(T)
 
     def project(self, points_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Project (N, 3) world points. Returns (uv (N, 2) float64 pixels, z (N,) metres)."""

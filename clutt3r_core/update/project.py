@@ -175,23 +175,6 @@ def _may_win(zbuf: np.ndarray, z: np.ndarray, u: np.ndarray, v: np.ndarray, r: n
     return out
 
 
-_CAMERA_WORLD: dict[int, tuple[Camera, np.ndarray]] = {}
-
-
-def _camera_world(camera: Camera) -> np.ndarray:
-    """``camera.T_camera_world`` (the same values), kept for the last few cameras: a fit splats
-    in one camera a few hundred times. The camera object itself is kept with its matrix, so an
-    id reused by another camera after garbage collection cannot match."""
-    hit = _CAMERA_WORLD.get(id(camera))
-    if hit is not None and hit[0] is camera:
-        return hit[1]
-    if len(_CAMERA_WORLD) >= 8:
-        _CAMERA_WORLD.clear()
-    T = camera.T_camera_world
-    _CAMERA_WORLD[id(camera)] = (camera, T)
-    return T
-
-
 def splat_inputs(points: np.ndarray, camera: Camera, voxel: float, scale: float = 1.0,
                  window: tuple[int, int, int, int] | None = None):
     """What ``splat`` splats: (z (N,) camera depth, u, v (N,) int64 pixel centres, r (N,) int
@@ -199,9 +182,9 @@ def splat_inputs(points: np.ndarray, camera: Camera, voxel: float, scale: float 
     window: the one given, else the one the ``ok`` splats touch, empty without any)."""
     # Camera.project and splat_radius written out with the same operations in the same order
     # (bit-identical u, v, z, r: tests/core/update/test_pose_speed.py), without their per-call
-    # overhead (the camera inverse, the (N, 2) stack, errstate, nan_to_num of values that are
+    # overhead (the (N, 2) stack, errstate, nan_to_num of values that are
     # never NaN here): the pose fit splats ~100 times per fit, this was 1/5 of a splat's CPU.
-    T = _camera_world(camera)
+    T = camera.T_camera_world  # computed once per camera (Camera caches it)
     pc = np.asarray(points, dtype=np.float64).reshape(-1, 3) @ T[:3, :3].T + T[:3, 3]
     z = pc[:, 2]
     with np.errstate(divide="ignore", invalid="ignore"):
