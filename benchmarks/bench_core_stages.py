@@ -25,8 +25,9 @@ in CPU seconds (``time.process_time``: on the project's shared 2-core machine wa
   that thread spent meanwhile; the warm call's total is exact either way. Since session 6 more
   work runs beside: auto's depth disagreement and the voxel position sums (in ``pointcloud``),
   the support's plane fits and every view's mask hits (in ``supervoxels``; the hits' own CPU
-  seconds, ``time.thread_time`` on that thread, are added to the ``occupancy`` row); ``warm call, main thread`` is the calling
-  thread's own CPU (``time.thread_time``), the part no second thread takes over;
+  seconds, ``time.thread_time`` on that thread, are added to the ``occupancy`` row);
+  ``warm call, main thread`` is the calling thread's own CPU (``time.thread_time``), the part
+  no second thread takes over;
 
 medians over the processes, and the current / base ratio. Not a unit test: the numbers depend
 on the machine and its load; the instance labels are checked equal (``same``).
