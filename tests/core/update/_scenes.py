@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from clutt3r_core.embeddings import AppearanceEmbedder
 from clutt3r_core.scene import Camera, MaskCandidates, View
 from clutt3r_core.update.project import render_labels
+from clutt3r_core.update.state import SceneState
 
 VOXEL = 0.005
 
@@ -88,6 +90,16 @@ def render_view(points, colors, inst, cam: Camera, frame=9, with_depth=True, bac
                            np.array([k + 1 for k in present], np.int32))
     depth = np.where(hit, z, np.nan).astype(np.float32) if with_depth else None
     return View(frame=frame, rgb=rgb, camera=cam, depth=depth, masks=masks)
+
+
+def state_of(pts, cols, inst) -> SceneState:
+    """The stored state of a scene: its instances (ids >= 0 of ``inst``) with the appearance
+    embedding of their masks in a view from ``camera()`` (rows follow the ids)."""
+    ids = np.unique(inst[inst >= 0]).astype(np.int32)
+    v = render_view(pts, cols, inst, camera(), frame=0)
+    emb = AppearanceEmbedder().embed_masks(v.rgb, v.masks.masks)
+    by_id = {int(m) - 1: e for m, e in zip(v.masks.ids, emb)}  # render_view's mask ids are instance + 1
+    return SceneState(pts, cols, inst, ids, np.stack([by_id.get(int(k), emb[0]) for k in ids]), "appearance-hsv")
 
 
 def table_points(x=(-0.2, 0.2), y=(-0.12, 0.2)) -> tuple[np.ndarray, np.ndarray]:

@@ -13,7 +13,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st_
 
-from clutt3r_core.embeddings import AppearanceEmbedder
 from clutt3r_core.errors import SceneError
 from clutt3r_core.scene import MaskCandidates, View
 from clutt3r_core.update.depth import support_plane, unexplained_regions
@@ -21,14 +20,8 @@ from clutt3r_core.update.state import SceneState
 from clutt3r_core.update.types import ChangeConfig, UpdateConfig
 from clutt3r_core.update.update import UpdateDetails, update_scene
 
-from ._scenes import camera, render_view, table_points, two_boxes_on_a_table, yaw_motion
+from ._scenes import camera, render_view, state_of, table_points, two_boxes_on_a_table, yaw_motion
 from .test_depth import CAM, FAST
-
-
-def _state(pts, cols, inst) -> SceneState:
-    v = render_view(pts, cols, inst, camera(), frame=0)
-    emb = AppearanceEmbedder().embed_masks(v.rgb, v.masks.masks)
-    return SceneState(pts, cols, inst, np.array([0, 1], np.int32), emb, "appearance-hsv")
 
 
 def _without_mask(v: View, instance: int) -> View:
@@ -40,7 +33,7 @@ def _pushed(yaw_deg: float):
     """Two boxes on a table, the state of it, box 0 turned ``yaw_deg`` about its centre and pushed
     5 cm along -y: (points, colours, instances, state, box 0's centre, T_world, moved points)."""
     pts, cols, inst = two_boxes_on_a_table()
-    st = _state(pts, cols, inst)
+    st = state_of(pts, cols, inst)
     c = st.points_of(0).astype(np.float64).mean(axis=0)
     T = yaw_motion(yaw_deg, (0.0, -0.05, 0.0), c)
     moved = pts.copy()
@@ -69,7 +62,7 @@ def test_a_removed_object_does_not_take_the_table_it_stood_on():
     # the table under the grasped box was never seen (no background point explains it): it is
     # below region_min_height, so the removed box is not fitted flat into it
     pts, cols, inst = two_boxes_on_a_table()
-    st = _state(pts, cols, inst)
+    st = state_of(pts, cols, inst)
     under = (np.abs(pts[:, 0] - 0.07) < 0.03) & (np.abs(pts[:, 1] - 0.03) < 0.03) & (inst < 0)
     st = SceneState(st.points[~under], st.colors[~under], st.instance[~under], st.instance_ids, st.embeddings,
                     st.embedder)
@@ -94,7 +87,7 @@ def _ghost_state():
 
 def test_an_ambiguous_place_whose_pixels_still_show_the_object_is_not_removed():
     (sp, sc, si), (pts, cols, inst) = _ghost_state()
-    st = _state(sp, sc, si)
+    st = state_of(sp, sc, si)
     v = render_view(pts, cols, inst, camera(**CAM), frame=8)
     # the unexplained-region search is off here: the cube with its ghost also fits its own
     # depth turned by a quarter turn (ghost to the back), which is another test's business
@@ -112,7 +105,7 @@ def test_an_ambiguous_place_whose_pixels_still_show_the_object_is_not_removed():
 
 def test_a_grasped_object_stays_removed_with_the_presence_check():
     (sp, sc, si), (pts, cols, inst) = _ghost_state()
-    st = _state(sp, sc, si)
+    st = state_of(sp, sc, si)
     keep = inst != 1
     res = update_scene(st, render_view(pts[keep], cols[keep], inst[keep], camera(**CAM), frame=8), FAST)
     assert res.record(1).status == "removed"

@@ -19,25 +19,18 @@ from clutt3r_core.update.state import HistoryEntry, SceneState, apply_update, lo
 from clutt3r_core.update.types import ChangeConfig, UpdateResult
 from clutt3r_core.update.update import update_scene
 
-from ._scenes import box_points, camera, render_view, two_boxes_on_a_table
+from ._scenes import box_points, camera, render_view, state_of, two_boxes_on_a_table
 from .test_depth import CAM, FAST
 
 NEW_BOX = dict(center=(0.0, 0.09, 0.02), size=(0.04, 0.04, 0.04),
                colors=[(230, 230, 40), (200, 200, 30), (240, 160, 200), (210, 130, 170), (250, 250, 120)])
 
 
-def _state(pts, cols, inst) -> SceneState:
-    v = render_view(pts, cols, inst, camera(), frame=0)
-    ids = np.unique(inst[inst >= 0]).astype(np.int32)
-    emb = AppearanceEmbedder().embed_masks(v.rgb, v.masks.masks)
-    return SceneState(pts, cols, inst, ids, emb, "appearance-hsv")
-
-
 def _with_new_box():
     """(state of two boxes on the table, points/colours/instances of the real scene with a third
     box (instance 2) behind them, the third box's points)."""
     pts, cols, inst = two_boxes_on_a_table()
-    st = _state(pts, cols, inst)
+    st = state_of(pts, cols, inst)
     p2, c2 = box_points(NEW_BOX["center"], NEW_BOX["size"], NEW_BOX["colors"])
     return (st, np.concatenate([pts, p2]), np.concatenate([cols, c2]),
             np.concatenate([inst, np.full(len(p2), 2, np.int32)]), p2)
@@ -135,7 +128,7 @@ def test_new_objects_off_reports_only():
 
 def test_masks_the_state_explains_or_that_show_the_table_are_not_added():
     pts, cols, inst = two_boxes_on_a_table()
-    st = _state(pts, cols, inst)
+    st = state_of(pts, cols, inst)
     v = render_view(pts, cols, inst, camera(**CAM))
     H, W = v.masks.shape
     table = np.zeros((H, W), bool)
@@ -160,7 +153,7 @@ def test_update_result_needs_points_for_every_added_instance():
     rec = InstanceUpdate(5, "new", None, 0.9, None, 3, "new-depth")
     res = UpdateResult(1, (rec,), (), np.zeros((1, 2, 2), bool), np.full((2, 2), -1, np.int32), 0.0)
     pts, cols, inst = two_boxes_on_a_table()
-    st = _state(pts, cols, inst)
+    st = state_of(pts, cols, inst)
     with pytest.raises(SceneError, match="must come with their points"):
         apply_update(st, res)
     with pytest.raises(SceneError, match="needs a record"):

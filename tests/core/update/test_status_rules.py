@@ -17,24 +17,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from clutt3r_core.embeddings import AppearanceEmbedder
 from clutt3r_core.scene import MaskCandidates, View
-from clutt3r_core.update.state import SceneState
 from clutt3r_core.update.types import ChangeConfig, UpdateConfig
 from clutt3r_core.update.update import UpdateDetails, update_scene
 
-from ._scenes import box_points, camera, render_view, two_boxes_on_a_table
+from ._scenes import box_points, camera, render_view, state_of, two_boxes_on_a_table
 from .test_depth import CAM, FAST
 from .test_photo import FAST as FAST_RGB
 from .test_photo import NEW_CAM
-
-
-def _state(pts, cols, inst) -> SceneState:
-    ids = np.unique(inst[inst >= 0]).astype(np.int32)
-    v = render_view(pts, cols, inst, camera(), frame=0)
-    emb = AppearanceEmbedder().embed_masks(v.rgb, v.masks.masks)
-    by_id = {int(m) - 1: e for m, e in zip(v.masks.ids, emb)}  # render_view's mask ids are instance + 1
-    return SceneState(pts, cols, inst, ids, np.stack([by_id.get(int(k), emb[0]) for k in ids]), "appearance-hsv")
 
 
 def _with(extra_pts, extra_cols, k: int):
@@ -55,7 +45,7 @@ def _thin_scene(height: float):
 @pytest.mark.parametrize("height", [0.010, 0.014])
 def test_a_thin_grasped_object_is_removed_not_taken_for_the_table(height):
     pts, cols, inst = _thin_scene(height)
-    st = _state(pts, cols, inst)
+    st = state_of(pts, cols, inst)
     keep = inst != 2
     v = render_view(pts[keep], cols[keep], inst[keep], camera(**CAM), frame=8)  # the table under it shows
     d = UpdateDetails()
@@ -69,7 +59,7 @@ def test_a_thin_grasped_object_is_removed_not_taken_for_the_table(height):
 
 def test_a_thin_object_left_in_place_stays_static():
     pts, cols, inst = _thin_scene(0.012)
-    st = _state(pts, cols, inst)
+    st = state_of(pts, cols, inst)
     res = update_scene(st, render_view(pts, cols, inst, camera(**CAM), frame=8), FAST)
     assert [r.status for r in res.instances] == ["static"] * 3
 
@@ -88,7 +78,7 @@ def test_an_instance_the_stored_table_hides_is_occluded_not_removed():
     gp, gc = box_points((0.0, -0.06, -0.03), (0.05, 0.05, 0.02),
                         [(200, 30, 200), (190, 30, 190), (210, 40, 210), (180, 20, 180), (220, 60, 220)])
     pts, cols, inst = _with(gp, gc, 2)
-    st = _state(pts, cols, inst)
+    st = state_of(pts, cols, inst)
     v = _rgb_view(pts, cols, inst)
     d = UpdateDetails()
     res = update_scene(st, v, FAST_RGB, details=d)
@@ -113,7 +103,7 @@ def _table_coloured_box():
 
 def test_a_static_object_with_few_informative_points_whose_mask_was_dropped_stays_static():
     pts, cols, inst = _table_coloured_box()
-    st = _state(pts, cols, inst)
+    st = state_of(pts, cols, inst)
     v = _rgb_view(pts, cols, inst, drop=(1,))
     d = UpdateDetails()
     res = update_scene(st, v, FAST_RGB, details=d)
@@ -129,7 +119,7 @@ def test_a_static_object_with_few_informative_points_whose_mask_was_dropped_stay
 
 def test_the_same_object_grasped_is_still_removed():
     pts, cols, inst = _table_coloured_box()
-    st = _state(pts, cols, inst)
+    st = state_of(pts, cols, inst)
     keep = inst != 1
     d = UpdateDetails()
     res = update_scene(st, _rgb_view(pts[keep], cols[keep], inst[keep]), FAST_RGB, details=d)
