@@ -37,6 +37,7 @@ from scipy import ndimage
 from clutt3r_core.errors import SceneError
 from clutt3r_core.scene import View
 from clutt3r_core.update.depth import explained_pixels, support_plane, unexplained_regions
+from clutt3r_core.update.state import moved_points
 from clutt3r_core.update.types import UpdateConfig
 
 __all__ = ["NewCandidate", "new_object_candidates", "voxel_mean", "next_instance_id"]
@@ -104,8 +105,6 @@ def new_object_candidates(state, view: View, new_masks: tuple[int, ...] | list[i
     dropped by the update. Returns [] without depth."""
     if view.depth is None or not len(new_masks):
         return []
-    from clutt3r_core.update.state import moved_points
-
     cc, ac = config.change, config.association
     cam, depth, voxel = view.camera, view.depth, state.voxel_size
     masks = view.masks
