@@ -362,11 +362,11 @@ def prepare_model(model: np.ndarray, colors: np.ndarray | None = None, max_model
         model = model[keep_idx]
         colors = None if colors is None else np.asarray(colors)[keep_idx]
     model = np.ascontiguousarray(model)
+    # the fusion's PCA normals, 10 nearest (fewer than 20 points are never registered)
+    normals = estimate_normals(model, 10) if len(model) >= 20 else np.zeros_like(model)
     # pykdtree on one thread (as the normals): the same neighbours and float64 distances as
     # scipy's cKDTree here, at 0.64x its query CPU (72 starts x 250 scene points on a 507-point
     # model; the queries are ~65 % of a registration; docs/update.md, session 6 second pass)
-    # the fusion's PCA normals, 10 nearest (fewer than 20 points are never registered)
-    normals = estimate_normals(model, 10) if len(model) >= 20 else np.zeros_like(model)
     return RegistrationModel(model, colors, knn_tree(model), normals)
 
 
