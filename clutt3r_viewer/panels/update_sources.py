@@ -71,12 +71,12 @@ def _result(folder: Path, doc: dict, hw: tuple[int, int]) -> UpdateResult:
 def _text(doc: dict) -> str:
     f = lambda x: "-" if x is None else f"{x:.2f}"  # noqa: E731
     rows = [f"| {r['instance']} | {r['status']} | {f(r['iou_before'])} | {f(r['iou_after'])} |" for r in doc["instances"]]
+    # masks that became instances (status "new", views with depth; the Updates tab draws
+    # their points, read from the update's state.npz, as a second cloud: added_points)
+    added = [m["instance"] for m in doc.get("new_masks", []) if m.get("instance") is not None]
     return ("| instance | status | IoU before | IoU after |\n| --- | --- | --- | --- |\n" + "\n".join(rows)
             + f"\n\n{len(doc.get('new_masks', []))} new masks"
-            # masks that became instances (status "new", views with depth; the Updates tab draws
-            # their points, read from the update's state.npz, as a second cloud: added_points)
-            + "".join(f"; {len(a)} added as instances {a}" for a in [[m["instance"] for m in doc.get("new_masks", [])
-                                                                       if m.get("instance") is not None]] if a)
+            + (f"; {len(added)} added as instances {added}" if added else "")
             + f"; {doc.get('time_s', 0):.2f} s")
 
 
