@@ -435,7 +435,8 @@ def _icp(model, scene, camera, depth, tree, normals, cm, cs, colors, rgb, *, sta
                 # a ranking, not the final test: every k-th model point (<= 600) ranks as well, ~2x cheaper
                 # (<= 300 points lost easy_503's true start to its 180 deg flip)
                 cons = _consistency_batch(model[:: -(-len(model) // 600)], Rw, tw, camera, depth, tol)
-                extra = [i for i in np.argsort(-(inl * cons), kind="stable") if i not in set(best)][:keep_consistent]
+                kept = set(best.tolist())
+                extra = [i for i in np.argsort(-(inl * cons), kind="stable") if i not in kept][:keep_consistent]
                 best = np.concatenate([best, np.asarray(extra, np.int64)])
             R, t = R[best], t[best]
             hist = [(a[best], b[best], c[best]) for a, b, c in hist]
