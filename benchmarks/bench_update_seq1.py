@@ -6,8 +6,8 @@ Frame 8 updates the run's state; frame 9 updates the state after frame 8 (in mem
 times in one process: the first call also pays the process's one-time costs (importing torch
 for the pose optimiser, first calls into scipy / OpenCV), the later ones are the steady state.
 CPU time (``time.process_time``, all threads) is the fair number on a shared machine; wall is
-printed too (``update_scene`` imports torch on a background thread while it associates:
-``update.prefetch_optimizer``).
+printed too (torch is imported in the calling thread when the first fit needs it: a background
+import measured no wall gain on the 2-core machine, docs/update.md "Session 6: update time").
 
 The fingerprint hashes, per instance, the status, the association's match, the IoUs and the
 bytes of T_world: equal fingerprints = bit-identical results. To compare two versions of the
