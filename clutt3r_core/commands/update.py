@@ -7,7 +7,7 @@ from pathlib import Path
 
 from tyro.conf import Positional
 
-from clutt3r_core.update.types import UpdateConfig
+from clutt3r_core.update.types import STATUSES, UpdateConfig
 
 __all__ = ["update_command"]
 
@@ -106,7 +106,7 @@ def update_command(
         from clutt3r_core.update.overlay import update_overlay
 
         write_png(out / "overlay.png", update_overlay(state, view, result))
-    counts = {s: len(result.by_status(s)) for s in ("static", "displaced", "removed", "occluded", "new")}
+    counts = {s: len(result.by_status(s)) for s in STATUSES}
     console.print(f"frame {view.frame}: " + ", ".join(f"{n} {s}" for s, n in counts.items())
                   + f", {len(result.new_masks)} new masks; {result.time_s:.2f} s -> {out / 'update.json'}")
     print(json.dumps(result.to_json()))
