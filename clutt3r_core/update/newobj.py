@@ -36,7 +36,7 @@ from scipy import ndimage
 
 from clutt3r_core.errors import SceneError
 from clutt3r_core.scene import View
-from clutt3r_core.update.depth import explained_pixels, support_plane, unexplained_regions
+from clutt3r_core.update.depth import explained_pixels, unexplained_regions
 from clutt3r_core.update.state import moved_points
 from clutt3r_core.update.types import UpdateConfig
 
@@ -99,10 +99,11 @@ def next_instance_id(state) -> int:
 
 
 def new_object_candidates(state, view: View, new_masks: tuple[int, ...] | list[int], motions: dict[int, np.ndarray],
-                          removed: set[int], config: UpdateConfig) -> list[NewCandidate]:
+                          removed: set[int], config: UpdateConfig, plane: np.ndarray | None) -> list[NewCandidate]:
     """The new masks (indices into ``view.masks``) that become instances (module docstring).
     ``motions``: instance id -> (4, 4) motion of the displaced instances; ``removed``: ids
-    dropped by the update. Returns [] without depth."""
+    dropped by the update; ``plane``: the support plane [nx, ny, nz, d] (``depth.support_plane``
+    of the state, as the update computes it once), or None. Returns [] without depth."""
     if view.depth is None or not len(new_masks):
         return []
     cc, ac = config.change, config.association
@@ -113,7 +114,6 @@ def new_object_candidates(state, view: View, new_masks: tuple[int, ...] | list[i
                     + ([-1] if cc.new_background_explains else []), np.int32)
     pts = moved_points(state, motions)
     explained = explained_pixels(pts, state.instance, keep, cam, depth, voxel, cc.in_place_tol)
-    plane = support_plane(state.points[state.instance < 0], state.points[state.instance >= 0], cc.in_place_tol)
     valid = np.isfinite(depth) & (depth > 0)
     taken = np.zeros((H, W), bool)
     order = sorted((int(mi) for mi in new_masks), key=lambda mi: (-int(np.count_nonzero(masks.masks[mi])), mi))

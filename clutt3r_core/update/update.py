@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
+from functools import cache
 
 import numpy as np
 
@@ -39,6 +40,7 @@ from clutt3r_core.scene import MaskCandidates, View
 from clutt3r_core.segmentation.trees import build_instance_tree
 from clutt3r_core.update.associate import (Association, Projection, associate, project_depth, project_instances,
                                            unmatched_status)
+from clutt3r_core.update.depth import support_plane
 from clutt3r_core.update.depth_change import depth_changes, fit_iou, registration_result
 from clutt3r_core.update.newobj import new_object_candidates, next_instance_id
 from clutt3r_core.update.photo_change import PhotoCheck, photo_at_pose, photo_check
@@ -73,16 +75,6 @@ def _moved(res, centroid: np.ndarray, iou_before: float, config: UpdateConfig) -
     shift = float(np.linalg.norm(T[:3, :3] @ centroid + T[:3, 3] - centroid))
     angle = float(np.degrees(np.arccos(np.clip((np.trace(T[:3, :3]) - 1) / 2, -1, 1))))
     return res.iou_after >= iou_before + c.min_iou_gain and (shift >= c.min_translation or angle >= c.min_rotation_deg)
-
-
-def _support(state: SceneState, cc) -> np.ndarray | None:
-    """The support plane for ``unfitted_presence``'s test (``ChangeConfig.presence_above_support``;
-    None: the plain per-pixel depth test)."""
-    if not cc.presence_above_support:
-        return None
-    from clutt3r_core.update.depth import support_plane
-
-    return support_plane(state.points[state.instance < 0], state.points[state.instance >= 0], cc.in_place_tol)
 
 
 def _iou_without(a: np.ndarray, b: np.ndarray, ignore: np.ndarray) -> float:
@@ -180,6 +172,10 @@ def _update_scene(state: SceneState, view: View, config: UpdateConfig, *, optimi
 
     proj_all = project_instances(state.points, state.instance, ids, cam, voxel, scale, colors=state.colors)
     cc = config.change
+    # the support plane (depth.support_plane), fitted at its first use: the presence test of each
+    # unfitted moved instance and the new objects use the same one (~30 ms of RANSAC a fit)
+    plane = cache(lambda: support_plane(state.points[state.instance < 0], state.points[state.instance >= 0],
+                                        cc.in_place_tol))
     photo: dict[int, str] = {}
     pc = None
     if cc.use_photo and not (cc.use_depth and view.depth is not None):
@@ -252,7 +248,8 @@ def _update_scene(state: SceneState, view: View, config: UpdateConfig, *, optimi
             if fit is None:  # its old place is seen empty and no mask or region fits it: grasped ...
                 new_mask.pop(k, None)
                 if cc.unfitted_presence and unmatched_status(
-                        view, proj_all, i, config.association, plane=_support(state, cc))[0] == "static":
+                        view, proj_all, i, config.association,
+                        plane=plane() if cc.presence_above_support else None)[0] == "static":
                     # ... unless its projection's pixels still show it (rule 5's depth presence
                     # test; ChangeConfig.unfitted_presence): the per-point place test was ambiguous
                     records.append(InstanceUpdate(k, "static", iou.get(k), iou.get(k), None, mid,
@@ -332,7 +329,7 @@ def _update_scene(state: SceneState, view: View, config: UpdateConfig, *, optimi
     gone = {int(r.instance) for r in records if r.status == "removed"}
     freed = [int(mi) for k, mi in zip(ids, assoc.mask_index) if mi >= 0 and int(k) in gone]
     new_idx = sorted({mi for mi in list(assoc.new_masks) + freed if mi not in taken})
-    added, became = _add_new(state, view, config, records, new_idx, mask_emb) if dc is not None else ([], {})
+    added, became = _add_new(state, view, config, records, new_idx, mask_emb, plane) if dc is not None else ([], {})
     new = tuple(NewMask(int(masks.ids[mi]), int(np.count_nonzero(masks.masks[mi])), became.get(mi, -1))
                 for mi in new_idx)
     change = np.zeros((len(ids) + len(added), *masks.shape), bool)
@@ -347,15 +344,16 @@ def _update_scene(state: SceneState, view: View, config: UpdateConfig, *, optimi
 
 
 def _add_new(state: SceneState, view: View, config: UpdateConfig, records: list[InstanceUpdate], new_idx: list[int],
-             mask_emb) -> tuple[list, dict]:
+             mask_emb, plane) -> tuple[list, dict]:
     """Views with depth (``ChangeConfig.new_objects``, newobj.py): the new masks that show an
-    object the updated state does not hold become instances with fresh ids. Returns
+    object the updated state does not hold become instances with fresh ids. ``plane``: () -> the
+    support plane (``depth.support_plane``), called only when a new mask is examined. Returns
     ([(record, NewInstance, mask index)], mask index -> instance id)."""
     if not config.change.new_objects or not new_idx:
         return [], {}
     motions = {r.instance: r.T_world for r in records if r.status == "displaced"}
     removed = {r.instance for r in records if r.status == "removed"}
-    cands = new_object_candidates(state, view, new_idx, motions, removed, config)
+    cands = new_object_candidates(state, view, new_idx, motions, removed, config, plane())
     masks, cam, out, became = view.masks, view.camera, [], {}
     nid = next_instance_id(state)
     for c in cands:
