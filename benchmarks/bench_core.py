@@ -170,22 +170,15 @@ def _naive_embed_masks(self, rgb, masks):
 def _naive_fit_plane_ransac(points, distance, iterations=500, seed=0, max_eval=4000, normals=None, min_normal_dot=0.0):
     # the same hypotheses as today's (support.ransac_hypothesis); the naive part is the
     # refinement by a full SVD of the (P, 3) inliers, as before the 3x3 scatter's eigh
-    from clutt3r_core.support import plane_inliers, ransac_hypothesis
+    from clutt3r_core.support import ransac_hypothesis, refine_plane
 
     pts = np.asarray(points, dtype=np.float64)
     nr = np.asarray(normals, dtype=np.float64) if normals is not None and min_normal_dot > 0 else None
     plane = ransac_hypothesis(pts, distance, iterations, seed, max_eval, nr, min_normal_dot)
     if plane is None:
         return None
-    for _ in range(2):
-        inl = plane_inliers(pts, nr, plane, distance, min_normal_dot)
-        if inl.sum() < 3:
-            break
-        q = pts[inl]
-        cen = q.mean(axis=0)
-        normal = np.linalg.svd(q - cen, full_matrices=False)[2][2]
-        plane = np.append(normal, -normal @ cen)
-    return plane, plane_inliers(pts, nr, plane, distance, min_normal_dot)
+    return refine_plane(pts, nr, plane, distance, min_normal_dot,
+                        normal_of=lambda q: np.linalg.svd(q, full_matrices=False)[2][2])
 
 
 def _naive_group_keys(keys, ext):

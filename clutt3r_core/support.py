@@ -17,7 +17,7 @@ from clutt3r_core.pointcloud import FusedCloud
 if TYPE_CHECKING:
     from clutt3r_core.supervoxels import SuperVoxelConfig
 
-__all__ = ["fit_plane_ransac", "plane_inliers", "ransac_hypothesis", "SupportPlanes", "support_planes", "mark_support"]
+__all__ = ["fit_plane_ransac", "plane_inliers", "ransac_hypothesis", "refine_plane", "SupportPlanes", "support_planes", "mark_support"]
 
 
 def fit_plane_ransac(
@@ -42,19 +42,31 @@ def fit_plane_ransac(
     if plane is None:
         return None
 
-    # Two least-squares refinements over the inliers: the normal is the eigenvector of
-    # the smallest eigenvalue of the 3x3 scatter of the centred inliers (the last right
-    # singular vector of their SVD, without the (P, 3) U factor that made the SVD slow).
+    return refine_plane(pts, nr, plane, distance, min_normal_dot)
+
+
+def _scatter_normal(q: np.ndarray) -> np.ndarray:
+    """The unit normal of centred points ``q`` (P, 3): the eigenvector of the smallest eigenvalue
+    of their 3x3 scatter (the last right singular vector of their SVD, without the (P, 3) U
+    factor that made the SVD slow)."""
+    return np.linalg.eigh(q.T @ q)[1][:, 0]
+
+
+def refine_plane(pts: np.ndarray, normals: np.ndarray | None, plane: np.ndarray, distance: float,
+                 min_normal_dot: float, normal_of=_scatter_normal) -> tuple[np.ndarray, np.ndarray]:
+    """Two least-squares refinements of ``plane`` [n, d] over its inliers (``plane_inliers``) of
+    ``pts`` (N, 3) float64: (plane, (N,) bool inliers of the result). ``normal_of``: centred
+    inliers (P, 3) -> unit normal (the benchmark's naive baseline passes a full SVD)."""
     for _ in range(2):
-        inl = plane_inliers(pts, nr, plane, distance, min_normal_dot)
+        inl = plane_inliers(pts, normals, plane, distance, min_normal_dot)
         if inl.sum() < 3:
             break
         q = pts[inl]
         cen = q.mean(axis=0)
         q -= cen
-        normal = np.linalg.eigh(q.T @ q)[1][:, 0]
+        normal = normal_of(q)
         plane = np.append(normal, -normal @ cen)
-    return plane, plane_inliers(pts, nr, plane, distance, min_normal_dot)
+    return plane, plane_inliers(pts, normals, plane, distance, min_normal_dot)
 
 
 def plane_inliers(points: np.ndarray, normals: np.ndarray | None, plane: np.ndarray, distance: float,
