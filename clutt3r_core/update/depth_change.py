@@ -101,10 +101,13 @@ class DepthChanges:
 
 
 def depth_changes(state, view: View, config: UpdateConfig, assoc: Association, status: dict,
-                  unsure: set | frozenset = frozenset()) -> DepthChanges:
+                  unsure: set | frozenset = frozenset(), plane=None) -> DepthChanges:
     """Judge the instances of ``state`` against ``view.depth`` (module docstring). ``unsure``:
     ids the paper's rules would not call static (unmatched, or IoU < tau_IoU); those whose old
-    place the depth cannot judge (hidden) are registered too, on the masks the moved ones left."""
+    place the depth cannot judge (hidden) are registered too, on the masks the moved ones left.
+    ``plane``: a callable returning the state's support plane (``depth.support_plane`` of its
+    background and object points; update.py passes the one it caches for its own tests), None:
+    fitted here when the region search needs it."""
     cc, ac = config.change, config.association
     cam, depth, voxel = view.camera, view.depth, state.voxel_size
     ids = state.instance_ids
@@ -178,7 +181,9 @@ def depth_changes(state, view: View, config: UpdateConfig, assoc: Association, s
                                       and overlap(q, [], in_place_tree) > cc.max_fit_overlap))
     left = sorted(k for k in moved if k not in fits)
     if cc.search_unexplained and left:
-        n_reg += _search_regions(state, view, config, left, moved, fits, taken, occ, starts, overlap)
+        support = plane() if plane is not None else support_plane(
+            state.points[state.instance < 0], state.points[state.instance >= 0], cc.in_place_tol)
+        n_reg += _search_regions(state, view, config, left, moved, fits, taken, occ, starts, overlap, support)
         left = [k for k in left if k not in fits]
     if cc.search_mask_pairs and left:  # last: each pair costs a registration per instance left
         n_reg += _search_mask_pairs(state, view, config, left, [c for c in cands if c[0] not in used_m], fits, taken,
@@ -270,7 +275,7 @@ def _occluded_between(ma: np.ndarray, mb: np.ndarray, depth: np.ndarray, pa: np.
 
 
 def _search_regions(state, view: View, config: UpdateConfig, left: list[int], moved: set, fits: dict,
-                    taken: list[np.ndarray], occ, starts: np.ndarray, overlap) -> int:
+                    taken: list[np.ndarray], occ, starts: np.ndarray, overlap, plane: np.ndarray | None) -> int:
     """``ChangeConfig.search_unexplained``: register the moved instances that no mask fitted
     to the regions of new depth that nothing stored explains (``depth.unexplained_regions``:
     not an unmoved instance, not the background, not an accepted fit), with the same
@@ -285,7 +290,6 @@ def _search_regions(state, view: View, config: UpdateConfig, left: list[int], mo
     for q in taken:  # the accepted fits' moved points (depth_changes appends one per fit)
         expl |= explained_pixels(q, np.zeros(len(q), np.int32), np.zeros(1, np.int32), cam, depth, voxel,
                                  cc.in_place_tol)
-    plane = support_plane(state.points[state.instance < 0], state.points[state.instance >= 0], cc.in_place_tol)
     regions = unexplained_regions(cam, depth, expl, plane, cc.region_min_height, cc.region_link,
                                   cc.region_min_pixels)
     targets = []

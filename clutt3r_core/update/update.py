@@ -172,8 +172,9 @@ def _update_scene(state: SceneState, view: View, config: UpdateConfig, *, optimi
 
     proj_all = project_instances(state.points, state.instance, ids, cam, voxel, scale, colors=state.colors)
     cc = config.change
-    # the support plane (depth.support_plane), fitted at its first use: the presence test of each
-    # unfitted moved instance and the new objects use the same one (~30 ms of RANSAC a fit)
+    # the support plane (depth.support_plane), fitted at its first use: the region search, the
+    # presence test of each unfitted moved instance and the new objects use the same one (~30 ms
+    # of RANSAC a fit)
     plane = cache(lambda: support_plane(state.points[state.instance < 0], state.points[state.instance >= 0],
                                         cc.in_place_tol))
     photo: dict[int, str] = {}
@@ -229,7 +230,7 @@ def _update_scene(state: SceneState, view: View, config: UpdateConfig, *, optimi
     dc = None
     if config.change.use_depth and view.depth is not None:
         unsure = {int(k) for k in ids if int(k) not in iou or iou[int(k)] < config.change.tau_iou}
-        dc = depth_changes(state, view, config, assoc, status, unsure)
+        dc = depth_changes(state, view, config, assoc, status, unsure, plane)
         if details is not None:
             details.depth = dc
         hidden_flagged = set(displaced) - dc.in_place - dc.moved - set(dc.fits)
