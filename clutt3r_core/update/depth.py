@@ -295,17 +295,24 @@ def _point_to_plane_batch(A: np.ndarray, B: np.ndarray, N: np.ndarray, w: np.nda
     return dR, x[:, 3:]
 
 
+def _on_or_in_front(p: np.ndarray, camera: Camera, depth: np.ndarray, tol: float):
+    """The free-space test's per-point parts for moved model points ``p`` (..., 3) metres, world:
+    (uv (..., 2) pixels, on (...) bool: within ``tol`` of the observed depth, front (...) bool:
+    more than ``tol`` in front of it); points behind the camera or without depth are neither."""
+    uv, z = camera.project(p.reshape(-1, 3))
+    d = _depth_at(depth, uv)
+    ok = np.isfinite(d) & (z > 0)
+    on = ok & (np.abs(d - z) <= tol)
+    front = ok & (z < d - tol)
+    return uv, on.reshape(p.shape[:-1]), front.reshape(p.shape[:-1])
+
+
 def _consistency(model: np.ndarray, T: np.ndarray, camera: Camera, depth: np.ndarray, tol: float,
                  colors: np.ndarray | None = None, rgb: np.ndarray | None = None) -> tuple[float, float]:
     """(consistency, photo): the free-space test of the module docstring, and the mean absolute
     colour difference (0-1) between the stored colours of the model points on the observed
     surface and the image there (NaN without colours)."""
-    p = model @ T[:3, :3].T + T[:3, 3]
-    uv, z = camera.project(p)
-    d = _depth_at(depth, uv)
-    ok = np.isfinite(d) & (z > 0)
-    on = ok & (np.abs(d - z) <= tol)
-    front = ok & (z < d - tol)
+    uv, on, front = _on_or_in_front(model @ T[:3, :3].T + T[:3, 3], camera, depth, tol)
     n = int(on.sum() + front.sum())
     photo = float("nan")
     if colors is not None and rgb is not None and on.any():
@@ -318,13 +325,8 @@ def _consistency(model: np.ndarray, T: np.ndarray, camera: Camera, depth: np.nda
 def _consistency_batch(model: np.ndarray, R: np.ndarray, t: np.ndarray, camera: Camera, depth: np.ndarray,
                        tol: float) -> np.ndarray:
     """(S,) the free-space consistency (``_consistency``) of ``model`` moved by each (R[s], t[s])."""
-    p = np.einsum("sij,nj->sni", R, model) + t[:, None]
-    uv, z = camera.project(p.reshape(-1, 3))
-    d = _depth_at(depth, uv).reshape(len(R), -1)
-    z = z.reshape(len(R), -1)
-    ok = np.isfinite(d) & (z > 0)
-    on = (ok & (np.abs(d - z) <= tol)).sum(axis=1)
-    front = (ok & (z < d - tol)).sum(axis=1)
+    _, on, front = _on_or_in_front(np.einsum("sij,nj->sni", R, model) + t[:, None], camera, depth, tol)
+    on, front = on.sum(axis=1), front.sum(axis=1)
     n = on + front
     return np.where(n > 0, on / np.maximum(n, 1), 0.0)
 
