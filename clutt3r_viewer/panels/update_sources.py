@@ -190,7 +190,7 @@ def added_points(data, u: int, after: bool = True) -> tuple[np.ndarray, np.ndarr
     motions; instance (M,) int32). Added instances removed by then are left out. They are not in
     the run's cloud, so the Updates tab draws them as a second point cloud."""
     n_done = u + 1 if after else u
-    ups = [f for f in data.updates[: max(n_done, 0)]]
+    ups = list(data.updates[: max(n_done, 0)])
     res = [f.result for f in ups if f.result is not None]
     if not any(r.added for r in res):
         return np.zeros((0, 3)), np.zeros(0, np.int32)
