@@ -21,9 +21,10 @@ from clutt3r_viewer.assets import logo_data_uri
 from clutt3r_viewer.camera import default_camera
 from clutt3r_viewer.data import ViewerData, lod_indices
 from clutt3r_viewer.events import EventSource, event_sources
-from clutt3r_viewer.layers import COLOR_LAYERS, HIGHLIGHT, LayerInput, layer_named
+from clutt3r_viewer.layers import COLOR_LAYERS, HIGHLIGHT, LayerInput, ghost_removed, layer_added_colors, layer_named
 from clutt3r_viewer.panels import PANELS, Panel, ScenePanel
 from clutt3r_viewer.panels.scene import LOD_OPTIONS
+from clutt3r_viewer.scene_step import ShownScene, scene_step, shown_scene
 from clutt3r_viewer.state import Change, SessionState
 
 __all__ = ["SessionState", "Session", "ViewerApp", "LOD_OPTIONS"]
@@ -118,26 +119,60 @@ class Session:
         srcs = self.app.sources
         return next((s for s in srcs if s.name == self.state.replay_source), srcs[0] if srcs else None)
 
+    def scene_step(self) -> int:
+        """Updates applied to the scene this tab shows (the Updates tab's choice; 0 = the run)."""
+        return scene_step(self.state.update, self.state.update_after, len(self.app.data.updates))
+
+    def scene(self) -> ShownScene:
+        """The scene this tab shows (``scene_step``) for its displayed points."""
+        return shown_scene(self.app.data, self.scene_step(), self.lod_idx)
+
     def layer_input(self) -> LayerInput:
-        return LayerInput(data=self.app.data, idx=self.lod_idx, instance=self.app.instance_labels(),
+        step = self.scene_step()
+        # after an update every layer colours the instances of that scene (removed ones -1, then
+        # ghosted by point_colors); the run's (corrected) labels before any
+        pi = self.app.data.updates[step - 1].point_instance if step > 0 else None
+        inst = self.app.instance_labels() if pi is None else pi
+        return LayerInput(data=self.app.data, idx=self.lod_idx, instance=inst,
                           scores=self.app.instance_scores(), replay=self.replay_source())
 
+    def _layer(self, inp: LayerInput):
+        layer = layer_named(self.state.color_mode)
+        return layer if layer is not None and layer.available(inp, self.state) else COLOR_LAYERS[0]
+
     def point_colors(self) -> np.ndarray:
-        """(n_displayed, 3) uint8 colours: the selected colour layer, the selected node highlighted."""
+        """(n_displayed, 3) uint8 colours: the selected colour layer in the scene shown (removed
+        instances ghosted), the selected node or instance highlighted."""
         inp = self.layer_input()
         st = self.state
-        layer = layer_named(st.color_mode)
-        if layer is None or not layer.available(inp, st):
-            layer = COLOR_LAYERS[0]
+        layer = self._layer(inp)
         col = layer.colors(inp, st)
         for p in self.panels:  # view-only overlays a panel keeps (the Edit tab's hidden instances)
             over = getattr(p, "overlay_colors", None)
             if over is not None:
                 col = over(self, col)
-        if st.node >= 0:
-            sel = self.app.data.node_points(st.node)[self.lod_idx]
-            col = (col * 0.35).astype(np.uint8)
-            col[sel] = HIGHLIGHT
+        if layer.name not in ("replay", "update") and self.scene_step() > 0:  # "update" ghosts them itself
+            col = ghost_removed(col, self.scene(), self.app.data)
+        return self._highlight(col, inp.instance[self.lod_idx], self.app.data.node_points(st.node)[self.lod_idx]
+                               if st.node >= 0 else None)
+
+    def added_colors(self) -> np.ndarray:
+        """(A, 3) uint8 colours of the scene's added instances (``ShownScene.added_*``) in the
+        selected colour layer, highlighted like the run's points."""
+        inp = self.layer_input()
+        sc = self.scene()
+        col = layer_added_colors(self._layer(inp), inp, self.state, sc.added_instance, sc.added_colors)
+        # a tree node is a mask of the initial views: never an added instance
+        return self._highlight(col, sc.added_instance, np.zeros(len(col), bool) if self.state.node >= 0 else None)
+
+    def _highlight(self, col: np.ndarray, inst: np.ndarray, node_sel: np.ndarray | None) -> np.ndarray:
+        sel = node_sel
+        if sel is None and self.state.instance >= 0:
+            sel = np.asarray(inst) == self.state.instance
+        if sel is None:
+            return col
+        col = (col * 0.35).astype(np.uint8)
+        col[sel] = HIGHLIGHT
         return col
 
     def recolor(self) -> None:
@@ -180,7 +215,37 @@ class Session:
                 self.state.view = int(d.trace.nodes.view[i])
                 change |= Change.VIEW
             self.state.node = int(i)
+            if i >= 0 and self.state.instance >= 0:  # one highlight at a time
+                self.state.instance = -1
+                change |= Change.INSTANCE
             self.changed(change)
+
+    def select_instance(self, k: int) -> None:
+        """Select instance ``k`` of the scene shown (-1 = none): highlighted in every colour mode."""
+        with self.lock:
+            k = int(k)
+            if k == self.state.instance:
+                return
+            change = Change.INSTANCE
+            if k >= 0 and self.state.node >= 0:  # one highlight at a time
+                self.state.node = -1
+                change |= Change.NODE
+            self.state.instance = k
+            self.changed(change)
+
+    def set_scene(self, update: int, after: bool | None = None) -> None:
+        """Show the scene after (``after``, else just before) update ``update`` (-1 = the run)."""
+        with self.lock:
+            st = self.state
+            after = st.update_after if after is None else bool(after)
+            if update == st.update and after == st.update_after:
+                return
+            st.update, st.update_after = int(update), after
+            if st.instance >= 0 and st.instance not in set(self.scene().present.tolist()):
+                st.instance = -1  # removed (or not added yet) in the scene now shown
+            if any(f.point_instance is not None for f in self.app.data.updates):
+                st.color_mode = "update"
+            self.changed(Change.COLOUR | Change.SCENE | Change.INSTANCE)
 
     def set_color_mode(self, mode: str) -> None:
         with self.lock:

@@ -2,7 +2,9 @@
 
 A layer has a ``name`` (shown in the Scene tab's Colour list), ``available(inp)`` (whether
 this run, in this tab, has what it needs) and ``colors(inp, state) -> (M, 3) uint8`` for
-the displayed points ``inp.idx``. The Colour list shows the available layers in
+the displayed points ``inp.idx``; optionally ``colors_added(inp, state, instance, rgb)`` for the
+points of instances an update added (not in the run's cloud; ``layer_added_colors``: instance
+colours by default). The Colour list shows the available layers in
 ``COLOR_LAYERS`` order; the selected tree node is highlighted on top of any layer by the
 session. Append a layer with ``register_color_layer``.
 """
@@ -21,7 +23,8 @@ if TYPE_CHECKING:
     from clutt3r_viewer.events import EventSource
 
 __all__ = ["HIGHLIGHT", "LayerInput", "ColorLayer", "COLOR_LAYERS", "register_color_layer", "layer_named",
-           "available_layers", "InstanceLayer", "RgbLayer", "ConfidenceLayer", "ReplayLayer", "QueryLayer"]
+           "available_layers", "InstanceLayer", "RgbLayer", "ConfidenceLayer", "ReplayLayer", "QueryLayer",
+           "layer_added_colors", "ghost_removed", "GHOST_WHITE"]
 
 HIGHLIGHT = np.array([255, 215, 0], np.uint8)
 
@@ -56,6 +59,29 @@ class ColorLayer(Protocol):
         ...
 
 
+GHOST_WHITE = 0.75
+"""Removed instances' points are drawn as their instance colour blended this much with white."""
+
+
+def ghost_removed(col: np.ndarray, scene, data: ViewerData) -> np.ndarray:
+    """``col`` with the points of instances removed by then (``scene.gone``, a ``ShownScene``)
+    drawn pale in their instance colour, where they were last seen."""
+    if not scene.gone.any():
+        return col
+    col = col.copy()
+    own = label_colors(np.asarray(data.seg.instance)[scene.idx[scene.gone]]).astype(np.float32)
+    col[scene.gone] = np.round((1 - GHOST_WHITE) * own + GHOST_WHITE * 255).astype(np.uint8)
+    return col
+
+
+def layer_added_colors(layer: "ColorLayer", inp: LayerInput, state: SessionState, instance: np.ndarray,
+                       rgb: np.ndarray) -> np.ndarray:
+    """(A, 3) uint8 colours of added instances' points (ids ``instance``, own colours ``rgb``) in
+    ``layer``: its ``colors_added`` when it has one, else the instance colours."""
+    fn = getattr(layer, "colors_added", None)
+    return fn(inp, state, instance, rgb) if fn is not None else label_colors(instance)
+
+
 @dataclass(frozen=True)
 class InstanceLayer:
     name: str = "instance"
@@ -77,6 +103,9 @@ class RgbLayer:
     def colors(self, inp: LayerInput, state: SessionState) -> np.ndarray:
         return inp.data.seg.colors[inp.idx].copy()
 
+    def colors_added(self, inp: LayerInput, state: SessionState, instance: np.ndarray, rgb: np.ndarray) -> np.ndarray:
+        return np.asarray(rgb, np.uint8).copy()
+
 
 @dataclass(frozen=True)
 class ConfidenceLayer:
@@ -94,6 +123,9 @@ class ConfidenceLayer:
         hi = float(inp.scores.max()) if len(inp.scores) else 1.0
         col[has] = ramp_colors(inp.scores[inst[has]], 0.0, hi)
         return col
+
+    def colors_added(self, inp: LayerInput, state: SessionState, instance: np.ndarray, rgb: np.ndarray) -> np.ndarray:
+        return np.tile(GREY, (len(instance), 1))  # an added instance has no grouping confidence
 
 
 @dataclass(frozen=True)
@@ -117,15 +149,24 @@ class QueryLayer:
     name: str = "query"
 
     def available(self, inp: LayerInput, state: SessionState) -> bool:
-        return state.query_scores is not None and len(state.query_scores) == len(inp.scores)
+        # one score per instance id of the chain (added ids after the run's); NaN = not ranked
+        return state.query_scores is not None and len(state.query_scores) >= len(inp.scores)
 
     def colors(self, inp: LayerInput, state: SessionState) -> np.ndarray:
+        return self._colors(inp.instance[inp.idx], state)
+
+    def colors_added(self, inp: LayerInput, state: SessionState, instance: np.ndarray, rgb: np.ndarray) -> np.ndarray:
+        return self._colors(np.asarray(instance), state)
+
+    @staticmethod
+    def _colors(inst: np.ndarray, state: SessionState) -> np.ndarray:
         sc = state.query_scores
         assert sc is not None
-        inst = inp.instance[inp.idx]
         col = np.tile(GREY, (len(inst), 1))
-        has = inst >= 0
-        col[has] = ramp_colors(sc[inst[has]], float(sc.min()), float(sc.max()))
+        has = (inst >= 0) & (inst < len(sc))
+        fin = sc[np.isfinite(sc)]
+        if len(fin):
+            col[has] = ramp_colors(sc[inst[has]], float(fin.min()), float(fin.max()))
         col[inst == state.query_best] = HIGHLIGHT
         return col
 

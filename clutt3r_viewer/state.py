@@ -27,6 +27,8 @@ class Change(enum.Flag):
     LABELS = enum.auto()   # the run's corrected labels (an edit in any tab)
     COLOUR = enum.auto()   # colour layer or its input (event, query, update frame)
     LOD = enum.auto()      # the displayed point subset
+    SCENE = enum.auto()    # the scene shown (state.update / update_after: the updates applied)
+    INSTANCE = enum.auto()  # state.instance (the selected instance)
 
 
 @dataclass
@@ -48,5 +50,6 @@ class SessionState:
     grasp: int = -1
     update: int = -1
     update_after: bool = True  # the Updates tab shows the scene after (else before) its update
+    instance: int = -1  # the selected instance (highlighted in every colour mode; the Grasps tab's target)
     playing: bool = False
     edit_instance: int = -1

@@ -85,7 +85,8 @@ class GraspsPanel(Panel):
         seg = s.app.data.seg
         counts = np.bincount(seg.instance[seg.instance >= 0], minlength=seg.num_instances)
         self.target = gui.add_dropdown("Target", [f"I{k} ({int(counts[k])} pts)" for k in range(seg.num_instances)]
-                                       or ["none"], hint="instance to grasp; selecting a tree node picks its instance")
+                                       or ["none"], hint="instance to grasp in the scene shown (after the updates "
+                                       "chosen in the Updates tab); selecting a tree node or an instance picks it")
         self.use_query = gui.add_button("Use query target", hint="the best instance of the Query tab's last query")
         self.use_query.on_click(lambda ev: self._use_query(s))
         self.top = gui.add_slider("Top N", min=1, max=50, step=1, initial_value=10)
@@ -103,10 +104,34 @@ class GraspsPanel(Panel):
             self._draw(s)
 
     def refresh(self, s: "Session", change: Change) -> None:
+        if change & Change.SCENE:
+            opts = self._options(s)
+            if tuple(opts) != tuple(self.target.options):
+                keep = _option_id(self.target.value)
+                self.target.options = opts
+                self._set_target(keep)
         if change & Change.NODE and s.state.node >= 0:
             k = int(s.app.data.node_instance[s.state.node])
             if k >= 0:
                 self._set_target(k)
+        if change & Change.INSTANCE and s.state.instance >= 0:
+            self._set_target(s.state.instance)
+
+    @staticmethod
+    def _options(s: "Session") -> list[str]:
+        """The instances of the scene shown, with their point counts there (added ones included)."""
+        seg = s.app.data.seg
+        if s.scene_step() == 0:
+            counts = np.bincount(seg.instance[seg.instance >= 0], minlength=seg.num_instances)
+            return [f"I{k} ({int(counts[k])} pts)" for k in range(seg.num_instances)] or ["none"]
+        from clutt3r_viewer.scene_step import shown_scene
+
+        sc = shown_scene(s.app.data, s.scene_step(), np.arange(len(seg.points)))
+        n = max(int(sc.present.max(initial=-1)) + 1, seg.num_instances)
+        counts = (np.bincount(sc.instance[sc.instance >= 0], minlength=n)
+                  + np.bincount(sc.added_instance, minlength=n))
+        return [f"I{k} ({int(counts[k])} pts{', new' if k in sc.added_in else ''})" for k in sc.present.tolist()] \
+            or ["none"]
 
     def _set_target(self, k: int) -> None:
         for opt in self.target.options:
@@ -127,13 +152,26 @@ class GraspsPanel(Panel):
 
         with s.lock:
             d = s.app.data
-            if not 0 <= k < d.seg.num_instances:
-                s.notify("Grasps", "pick a target instance")
-                return
-            views = tuple(DepthView(v.camera, v.depth) for v in d.views if v.depth is not None)
-            gs = create_backend("grasp_planner").plan(request_from_segmentation(d.seg, k, views))
+            step = s.scene_step()
+            if step > 0:  # the scene after the updates shown: moved, removed and added instances
+                from clutt3r_viewer.scene_step import scene_grasp_request
+
+                if k not in set(s.scene().present.tolist()):
+                    s.notify("Grasps", f"I{k} is not in the scene after update {step}: pick a target instance")
+                    return
+                req = scene_grasp_request(d, step, k)
+                views = ()
+            else:
+                if not 0 <= k < d.seg.num_instances:
+                    s.notify("Grasps", "pick a target instance")
+                    return
+                views = tuple(DepthView(v.camera, v.depth) for v in d.views if v.depth is not None)
+                req = request_from_segmentation(d.seg, k, views)
+            gs = create_backend("grasp_planner").plan(req)
             self._grasps, self._target = gs.top(int(self.top.value)), k
-            note = gs.message or ("" if views else "no depth views: cloud-only collision checks")
+            note = gs.message or ("" if views else
+                                  f"after update {step}: cloud-only collision checks (the initial views no longer "
+                                  "show this scene)" if step > 0 else "no depth views: cloud-only collision checks")
             self.summary.content = (f"**{len(self._grasps)}** grasps for I{k}" if len(self._grasps) else
                                     f"no grasp for I{k}") + (f"  \n_{note}_" if note else "")
             self._draw(s)

@@ -49,6 +49,38 @@ def language_backend_name() -> str | None:
         return None
 
 
+def _in_scene(s: "Session", scores: np.ndarray, text_embedding: np.ndarray | None) -> tuple[np.ndarray, list[str]]:
+    """The run's per-instance ``scores`` for the scene the tab shows (after its updates): one
+    score per instance id of the chain, NaN = not ranked (removed by then; added but without an
+    embedding in the text's space), and the lines that say so. An added instance is scored by
+    its mask's embedding (``NewInstance.embedding``, the state's embedder) when a text embedding
+    in that space is given (the run's own text embedder)."""
+    step = s.scene_step()
+    if step == 0:
+        return scores, []
+    sc = s.scene()
+    n = max(len(scores), int(sc.present.max(initial=-1)) + 1)
+    out = np.full(n, np.nan, np.float32)
+    out[: len(scores)] = scores
+    gone = [k for k in sc.removed if k < n]
+    out[gone] = np.nan
+    emb = {a.instance: a.embedding for u in s.app.data.updates[:step] if u.result is not None for a in u.result.added}
+    unscored = []
+    for k in sorted(sc.added_in):
+        e = emb.get(k)
+        if text_embedding is not None and e is not None and e.shape == np.shape(text_embedding) and np.any(e):
+            t = np.asarray(text_embedding, np.float32)
+            out[k] = float(e @ t / max(float(np.linalg.norm(t)), 1e-12))
+        else:
+            unscored.append(k)
+    note = [f"\n_scene after update {step}_" + (f"; removed, not ranked: {', '.join(f'I{k}' for k in gone)}" if gone else "")
+            + (f"; added {', '.join(f'I{k}' for k in sorted(sc.added_in))}" if sc.added_in else "")]
+    if unscored:
+        note.append(f"_not ranked: {', '.join(f'I{k}' for k in unscored)} (added by an update; this backend describes "
+                    "the run's masks only)_")
+    return out, note
+
+
 class QueryPanel(Panel):
     tab = "Query"
     query: "viser.GuiTextHandle"
@@ -67,6 +99,12 @@ class QueryPanel(Panel):
         self.query.on_update(lambda ev: self.run_query(s, self.query.value))
         name = s.app.text_embedder.name if s.app.text_embedder is not None else language_backend_name()
         self.result = gui.add_markdown(f"_text embedder: `{name}`_")
+
+    def refresh(self, s: "Session", change: Change) -> None:
+        # another scene shown (an update chosen): rank the instances of that scene again, off the
+        # session's lock (run_query takes it and broadcasts its own change)
+        if change & Change.SCENE and s.state.query:
+            threading.Thread(target=self.run_query, args=(s, s.state.query, False), daemon=True).start()
 
     # -- the language backend -----------------------------------------------------------------
 
@@ -90,29 +128,36 @@ class QueryPanel(Panel):
     def _language_scores(self, s: "Session", text: str):
         rq = self._run_query_object(s)
         res = rq.query(text)
-        lines = [f"**{text}** → I{res.target} "
-                 + ("(confident)" if res.confident else "(_not confident: nothing matches clearly_)"),
+        scores, note = _in_scene(s, res.scores.astype(np.float32), None)
+        ranking = [k for k in res.ranking if np.isfinite(scores[k])]  # removed instances are not ranked
+        target = res.target if res.target in ranking else (ranking[0] if ranking else None)
+        lines = [f"**{text}** → I{target} "
+                 + ("(confident)" if res.confident and target == res.target else
+                    "(_not confident: nothing matches clearly_)"),
                  "", "| inst | score | why |", "|---|---|---|"]
-        for k in res.ranking[:8]:
+        for k in ranking[:8]:
             why = res.explanations[k].summary().replace("|", "/")
             lines.append(f"| I{k} | {res.scores[k]:+.2f} | {why} |")
         lines.append(f"\n_{res.backend}, {res.time_s * 1e3:.0f} ms_")
-        return res.scores.astype(np.float32), res.target, "\n".join(lines)
+        return scores, target, "\n".join(lines + note)
 
     # -- shared-space text embedder (the run's own) --------------------------------------------
 
     def _cosine_scores(self, s: "Session", text: str):
         emb = s.app.text_embedder.embed_text([text])[0]
         scores = s.app.data.instance_text_scores(emb)
-        if len(scores) == 0:
+        scores, note = _in_scene(s, scores, emb)
+        ranked = np.flatnonzero(np.isfinite(scores))
+        if len(ranked) == 0:
             return scores, None, "_no instances_"
-        order = np.argsort(-scores)
+        order = ranked[np.argsort(-scores[ranked], kind="stable")]
         content = "\n".join([f"**{text}** → I{int(order[0])}", "", "| inst | score |", "|---|---|"]
-                            + [f"| I{int(k)} | {scores[k]:.3f} |" for k in order[:8]])
+                            + [f"| I{int(k)} | {scores[k]:.3f} |" for k in order[:8]] + note)
         return scores, int(order[0]), content
 
-    def run_query(self, s: "Session", text: str) -> None:
-        """Score every instance against ``text``; the best one is highlighted (``query`` colour layer)."""
+    def run_query(self, s: "Session", text: str, show: bool = True) -> None:
+        """Score every instance of the scene shown against ``text``; the best one is highlighted
+        (``query`` colour layer, switched to when ``show``)."""
         text = text.strip()
         scores = best = None
         content = "_empty query_"
@@ -127,12 +172,13 @@ class QueryPanel(Panel):
         with s.lock:
             st = s.state
             st.query = text
-            if scores is None or best is None or len(scores) == 0:
+            if scores is None or best is None or len(scores) == 0 or not np.isfinite(scores).any():
                 st.query_best, st.query_scores = -1, None
                 if st.color_mode == "query":
                     st.color_mode = "instance"
             else:
                 st.query_best, st.query_scores = int(best), np.asarray(scores, np.float32)
-                st.color_mode = "query"
+                if show:
+                    st.color_mode = "query"
             self.result.content = content
             s.changed(Change.COLOUR)

@@ -10,13 +10,14 @@ from clutt3r_viewer.camera import frustum_scale
 from clutt3r_viewer.data import label_colors, lod_indices
 from clutt3r_viewer.layers import available_layers
 from clutt3r_viewer.panels.base import Change, Panel, downscale_step
+from clutt3r_viewer.scene_step import shown_scene
 
 if TYPE_CHECKING:
     import viser
 
     from clutt3r_viewer.app import Session
 
-__all__ = ["ScenePanel", "InstancesPanel", "LOD_OPTIONS"]
+__all__ = ["ScenePanel", "InstancesPanel", "LOD_OPTIONS", "instance_option", "option_instance"]
 
 LOD_OPTIONS = {"50k": 50_000, "200k": 200_000, "1M": 1_000_000, "all": 0}
 _THUMB_MAX_WIDTH = 160  # frustum thumbnails: small, they are only a visual cue
@@ -36,7 +37,10 @@ class ScenePanel(Panel):
     frustums: "list[viser.CameraFrustumHandle]"
     centroids: "list[viser.PointCloudHandle]"
     frustum_scale: float = 0.04
-    moved: bool = False  # the cloud shows an event source's positions, not the run's
+    moved: bool = False  # the cloud shows an event source's or an update's positions, not the run's
+    added: "viser.PointCloudHandle | None" = None
+    """The instances the updates of the scene shown added (not in the run's cloud), or None."""
+    _added_key: tuple | None = None
 
     def build(self, s: "Session") -> None:
         gui = s.client.gui
@@ -46,10 +50,15 @@ class ScenePanel(Panel):
                                     hint="level of detail: points sent to this tab")
         self.lod.on_update(lambda ev: self.set_lod(s, self.lod.value))
         self.size = gui.add_slider("Point size (mm)", 1.0, 20.0, 0.5, s.app.point_size * 1000)
-        self.size.on_update(lambda ev: setattr(self.cloud, "point_size", self.size.value / 1000))
+        self.size.on_update(lambda ev: self._set_point_size(self.size.value / 1000))
         self.cameras = gui.add_checkbox("Cameras", True)
         self.cameras.on_update(lambda ev: self._toggle_frustums(s, self.cameras.value))
         self._build_scene(s)
+
+    def _set_point_size(self, size: float) -> None:
+        for h in (self.cloud, self.added):
+            if h is not None:
+                h.point_size = size
 
     @staticmethod
     def _layer_names(s: "Session") -> list[str]:
@@ -96,13 +105,21 @@ class ScenePanel(Panel):
             precision="float16")
 
     def recolor(self, s: "Session") -> None:
-        """Colour-only update (viser sends colours, not points), plus positions when an event source moves them."""
-        src = s.replay_source() if s.state.color_mode == "replay" else None
-        pts = src.points(s.state.event, s.lod_idx) if src is not None else None
-        if s.state.color_mode == "update":  # the Updates tab's scene after (or before) its update
-            from clutt3r_viewer.panels.updates import update_positions
-
-            pts = update_positions(s)
+        """Colour-only update (viser sends colours, not points), plus positions when the scene
+        shown moved points (an update) or an event source moves them (the Replay tab), and the
+        second cloud of the instances updates added."""
+        st = s.state
+        src = s.replay_source() if st.color_mode == "replay" else None
+        added = None
+        if src is not None:  # the replay's own scene: the grouping's initial one, or a pose replay's
+            pts = src.points(st.event, s.lod_idx)
+            fn = getattr(src, "added", None)
+            added = fn(st.event) if fn is not None else None
+        else:
+            sc = s.scene()
+            pts = sc.points if sc.moved else None
+            if len(sc.added_points):
+                added = (sc.added_points, sc.added_instance, s.added_colors())
         if pts is not None:
             self.cloud.points = (pts - s.app.data.centre).astype(np.float32)
             self.moved = True
@@ -110,7 +127,30 @@ class ScenePanel(Panel):
             self.cloud.points = (s.app.data.seg.points[s.lod_idx] - s.app.data.centre).astype(np.float32)
             self.moved = False
         self.cloud.colors = s.point_colors()
+        self._draw_added(s, added)
         s.colour_updates += 1
+
+    def _draw_added(self, s: "Session", added) -> None:
+        """The instances the shown updates added ((points, instance, colours) or None): not in the
+        run's cloud, so a second cloud, replaced when they change, recoloured otherwise."""
+        if added is None or not len(added[0]):
+            if self.added is not None:
+                self.added.remove()
+                self.added = None
+                self._added_key = None
+            return
+        pts, inst, col = added
+        key = (len(pts), float(np.asarray(pts).sum()))
+        if self.added is not None and key == self._added_key:
+            self.added.colors = col
+            return
+        if self.added is not None:
+            self.added.remove()
+        centre = s.app.data.centre
+        self.added = s.client.scene.add_point_cloud(
+            "/cloud_added", (np.asarray(pts) - centre).astype(np.float32), col, point_size=self.cloud.point_size,
+            point_shape="rounded", position=centre, precision="float16")
+        self._added_key = key
 
     def set_lod(self, s: "Session", lod: str) -> None:
         with s.lock:
@@ -138,28 +178,52 @@ class ScenePanel(Panel):
                 self.color.options = names
             if self.color.value != s.state.color_mode and s.state.color_mode in names:
                 self.color.value = s.state.color_mode
-        if change & (Change.VIEW | Change.NODE | Change.LABELS | Change.COLOUR):
+        if change & (Change.VIEW | Change.NODE | Change.LABELS | Change.COLOUR | Change.SCENE | Change.INSTANCE):
             self.recolor(s)
-        elif change & Change.LOD and s.state.color_mode in ("replay", "update"):
+        elif change & Change.LOD and (s.state.color_mode == "replay" or s.scene_step() > 0):
             self.recolor(s)
 
 
 class InstancesPanel(Panel):
-    """The instance table (corrected instances when the run has edits)."""
+    """The instance table of the scene shown (corrected instances when the run has edits; after
+    an update: the instances then, added ones marked new, removed ones listed apart) and the
+    instance selection (highlighted in every colour mode; the Grasps tab's target)."""
 
     tab = "Scene"
+    select: "viser.GuiDropdownHandle[str]"
     table: "viser.GuiMarkdownHandle"
 
     def build(self, s: "Session") -> None:
+        self.select = s.client.gui.add_dropdown("Instance", self.options(s), initial_value=NO_INSTANCE,
+                                                hint="highlight an instance of the scene shown (in every colour mode)")
+        self.select.on_update(lambda ev: s.select_instance(option_instance(self.select.value)))
         self.table = s.client.gui.add_markdown(self.markdown(s))
 
     def refresh(self, s: "Session", change: Change) -> None:
-        if change & Change.LABELS:
+        if change & (Change.LABELS | Change.SCENE):
             self.table.content = self.markdown(s)
+            opts = self.options(s)
+            if tuple(opts) != tuple(self.select.options):
+                self.select.options = opts
+        if change & (Change.INSTANCE | Change.SCENE | Change.LABELS):
+            want = instance_option(s.state.instance)
+            if self.select.value != want and want in self.select.options:
+                self.select.value = want
+
+    @staticmethod
+    def options(s: "Session") -> list[str]:
+        if s.scene_step() == 0:
+            ann = s.app.annotations
+            ids = list(ann.current.alive) if ann is not None and ann.num_ops else range(s.app.data.seg.num_instances)
+        else:
+            ids = s.scene().present.tolist()
+        return [NO_INSTANCE] + [instance_option(int(k)) for k in ids]
 
     @staticmethod
     def markdown(s: "Session") -> str:
         seg = s.app.data.seg
+        if s.scene_step() > 0:
+            return _scene_markdown(s)
         ann = s.app.annotations
         if ann is not None and ann.num_ops:  # corrected: masks are those of the original instance
             lab = ann.current
@@ -173,3 +237,44 @@ class InstancesPanel(Panel):
         for k in range(seg.num_instances):
             lines.append(f"| I{k} | {seg.scores[k]:.2f} | {len(seg.instance_nodes(k))} | {int(npts[k])} |")
         return "\n".join(lines)
+
+
+NO_INSTANCE = "none"
+
+
+def instance_option(k: int) -> str:
+    return NO_INSTANCE if k < 0 else f"I{k}"
+
+
+def option_instance(text: str) -> int:
+    try:
+        return int(str(text)[1:]) if str(text).startswith("I") else -1
+    except ValueError:
+        return -1
+
+
+def _scene_markdown(s: "Session") -> str:
+    """The instances after the updates shown: the run's (conf, points) and the added ones
+    ("new in frame F", no grouping confidence), then the removed ones."""
+    from clutt3r_viewer.scene_step import chain_steps
+
+    d = s.app.data
+    seg = d.seg
+    step = s.scene_step()
+    sc = shown_scene(d, step, np.arange(len(seg.points)))  # all points: counts independent of the LOD
+    steps = chain_steps(d)[:step]
+    moved = {k: st.frame for st in steps for k, _, _ in st.displaced}
+    gone = {k: st.frame for st in steps for k in st.removed}
+    npts = np.bincount(sc.instance[sc.instance >= 0], minlength=seg.num_instances)
+    nadd = dict(zip(*np.unique(sc.added_instance, return_counts=True)))
+    lines = [f"_after update {step} of {len(d.updates)}_", "", "| inst | conf | status | points |", "|---|---|---|---|"]
+    for k in sc.present.tolist():
+        if k in sc.added_in:
+            status = f"**new** (frame {sc.added_in[k]})" + (f", moved (frame {moved[k]})" if k in moved else "")
+            lines.append(f"| I{k} | - | {status} | {int(nadd.get(k, 0))} |")
+        else:
+            status = f"moved (frame {moved[k]})" if k in moved else "in place"
+            lines.append(f"| I{k} | {seg.scores[k]:.2f} | {status} | {int(npts[k])} |")
+    if gone:
+        lines += ["", "removed: " + ", ".join(f"I{k} (frame {f})" for k, f in sorted(gone.items()))]
+    return "\n".join(lines)

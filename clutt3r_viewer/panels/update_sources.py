@@ -22,7 +22,7 @@ Importing this module registers:
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -35,14 +35,12 @@ from clutt3r_core.update.state import load_pose_traces, state_dirs
 
 from clutt3r_viewer.data import label_colors
 from clutt3r_viewer.events import PoseIterations, register_event_source
-from clutt3r_viewer.layers import register_color_layer
+from clutt3r_viewer.layers import GHOST_WHITE, register_color_layer
 from clutt3r_viewer.loading import register_update_loader
 
 __all__ = ["load_update_frames", "update_pose_events", "update_motions", "updated_scene", "updated_labels",
-           "added_points", "UpdateSceneLayer", "GHOST_WHITE"]
+           "added_points", "added_instances", "UpdateSceneLayer", "GHOST_WHITE"]
 
-GHOST_WHITE = 0.75
-"""Removed instances' points are drawn as their instance colour blended this much with white."""
 
 
 def _result(folder: Path, doc: dict, hw: tuple[int, int]) -> UpdateResult:
@@ -62,8 +60,11 @@ def _result(folder: Path, doc: dict, hw: tuple[int, int]) -> UpdateResult:
     added = ()
     if new_ids and (folder / "state.npz").is_file():
         with np.load(folder / "state.npz") as z:  # each z[key] reads the array from the archive again
-            inst, pts, cols = z["instance"], z["points"], z["colors"]
-        added = tuple(NewInstance(k, -1, pts[inst == k], cols[inst == k]) for k in new_ids if np.any(inst == k))
+            inst, pts, cols, ids, emb = z["instance"], z["points"], z["colors"], z["instance_ids"], z["embeddings"]
+        # the embedding (its mask's, the state's embedder) lets a query in the run's space rank it
+        e_of = lambda k: emb[int(np.searchsorted(ids, k))] if emb.shape[1] and k in ids else None  # noqa: E731
+        added = tuple(NewInstance(k, -1, pts[inst == k], cols[inst == k], e_of(k)) for k in new_ids
+                      if np.any(inst == k))
     return UpdateResult(int(doc["frame"]), tuple(recs), (), np.zeros((len(recs), *hw), bool),
                         np.full(hw, -1, np.int32), float(doc.get("time_s", 0.0)), added=added)
 
@@ -113,18 +114,68 @@ def load_update_frames(run_dir: Path | None, scene: Scene | None) -> tuple[Updat
     return tuple(out)
 
 
+@dataclass(frozen=True, eq=False)
+class UpdatePoseIterations(PoseIterations):
+    """``PoseIterations`` of the update chain over the run's points AND the instances the updates
+    added: ``points0`` (and ``instance``, ``context_rgb``) hold the run's N points, then every
+    added instance's points as added (A). Step n replays an update's optimisation in the scene
+    before that update: the added instances of the earlier updates (not removed by then) are
+    there, moved like the others (an added instance an update displaces moves with its pose).
+
+    Attributes:
+        n_run: N, the run's points (the first rows of ``points0``).
+        added_from: (A,) int64 index in ``data.updates`` of the update that added each point.
+        added_until: (A,) int64 index of the update that removed it (len(updates): never).
+        step_update: (T,) int64 index in ``data.updates`` of the update step t replays.
+    """
+
+    n_run: int = 0
+    added_from: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    added_until: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    step_update: np.ndarray = field(default_factory=lambda: np.zeros(1, np.int64))
+
+    def added(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """(points (A', 3) float32 world metres, instance (A',) int32, colours (A', 3) uint8) of the
+        added instances in step n's scene, or None when there are none."""
+        j = int(self.step_update[self._it(n)])
+        on = np.flatnonzero((self.added_from < j) & (self.added_until >= j))
+        if not len(on):
+            return None
+        idx = self.n_run + on
+        inst = np.asarray(self.added_id, np.int32)[on]
+        return self.points(n, idx), inst, self.colors(n, idx)
+
+    @property
+    def added_id(self) -> np.ndarray:
+        """(A,) int32 instance id of every added point."""
+        return self._added_id
+
+    _added_id: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
+
+
 def update_pose_events(data) -> PoseIterations | None:
-    """The pose iterations of every update of ``data.updates`` as one event source, or None."""
-    ups = [u for u in data.updates if u.result is not None]
-    moving = [(u, [r for r in u.result.instances if r.pose is not None]) for u in ups]
-    moving = [(u, rs) for u, rs in moving if rs]
+    """The pose iterations of every update of ``data.updates`` as one event source
+    (``UpdatePoseIterations``), or None when no update optimised a pose."""
+    moving = [(j, u, [r for r in u.result.instances if r.pose is not None])
+              for j, u in enumerate(data.updates) if u.result is not None]
+    moving = [(j, u, rs) for j, u, rs in moving if rs]
     if not moving:
         return None
     seg = data.seg
-    n_inst = max(seg.num_instances, 1 + max(r.instance for _, rs in moving for r in rs))
+    adds = [(j, a) for j, u in enumerate(data.updates) if u.result is not None for a in u.result.added]
+    gone_at = {r.instance: j for j, u in reversed(list(enumerate(data.updates))) if u.result is not None
+               for r in u.result.instances if r.status == "removed"}
+    ids = [r.instance for _, _, rs in moving for r in rs] + [a.instance for _, a in adds]
+    n_inst = max(seg.num_instances, 1 + max(ids))
     base = np.tile(np.eye(4), (n_inst, 1, 1))  # accumulated motion of earlier updates
-    poses, resid = [base.copy()], [np.full(n_inst, np.nan)]
-    for _, rs in moving:
+    poses, resid, step_update = [base.copy()], [np.full(n_inst, np.nan)], [moving[0][0]]
+    done = 0  # updates whose displacements are in base (updates without a pose record move nothing)
+    for j, u, rs in moving:
+        for v in data.updates[done:j]:  # earlier updates that displaced without a recorded pose
+            for r in () if v.result is None else v.result.instances:
+                if r.status == "displaced" and r.pose is None and r.T_world is not None:
+                    base[r.instance] = np.asarray(r.T_world) @ base[r.instance]
+        done = j
         length = max(len(r.pose.trace) for r in rs)
         for t in range(length):
             P = base.copy()
@@ -135,14 +186,29 @@ def update_pose_events(data) -> PoseIterations | None:
                 res[r.instance] = r.pose.trace.losses[tt, 0]
             poses.append(P)
             resid.append(res)
-        for r in rs:
-            if r.status == "displaced":
+            step_update.append(j)
+        for r in u.result.instances:
+            if r.status == "displaced" and r.T_world is not None:
                 base[r.instance] = r.T_world @ base[r.instance]
-    moved_ids = sorted({r.instance for _, rs in moving for r in rs})
+        done = j + 1
+    moved_ids = sorted({r.instance for _, _, rs in moving for r in rs})
     inst = np.where(np.isin(seg.instance, moved_ids), seg.instance, -1).astype(np.int64)
-    return PoseIterations(instance=inst, poses=np.stack(poses), residual=np.stack(resid),
-                          points0=seg.points, name="scene updates: pose iterations",
-                          context_rgb=np.asarray(seg.colors, np.uint8))
+    pts, cols = [np.asarray(seg.points, np.float32)], [np.asarray(seg.colors, np.uint8)]
+    a_inst, a_id, a_from, a_until = [inst], [], [], []
+    for j, a in adds:
+        m = len(a.points)
+        pts.append(np.asarray(a.points, np.float32))
+        cols.append(np.asarray(a.colors, np.uint8))
+        a_inst.append(np.full(m, a.instance if a.instance in moved_ids else -1, np.int64))
+        a_id.append(np.full(m, a.instance, np.int32))
+        a_from.append(np.full(m, j, np.int64))
+        a_until.append(np.full(m, gone_at.get(a.instance, len(data.updates)), np.int64))
+    cat = lambda xs, dt: np.concatenate(xs) if xs else np.zeros(0, dt)  # noqa: E731
+    return UpdatePoseIterations(
+        instance=np.concatenate(a_inst), poses=np.stack(poses), residual=np.stack(resid), points0=np.concatenate(pts),
+        name="scene updates: pose iterations", context_rgb=np.concatenate(cols), n_run=len(seg.points),
+        added_from=cat(a_from, np.int64), added_until=cat(a_until, np.int64),
+        step_update=np.asarray(step_update, np.int64), _added_id=cat(a_id, np.int32))
 
 
 def update_motions(updates, n_instances: int) -> np.ndarray:
@@ -184,19 +250,19 @@ def updated_scene(data, u: int, idx: np.ndarray, after: bool = True) -> tuple[np
     return pts, inst, gone
 
 
-def added_points(data, u: int, after: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """The instances added (status "new") by the updates of ``updated_scene``'s scene (after update
-    ``u``, or just before it): (points (M, 3) float64 world metres, moved by the later updates'
-    motions; instance (M,) int32). Added instances removed by then are left out. They are not in
-    the run's cloud, so the Updates tab draws them as a second point cloud."""
-    n_done = u + 1 if after else u
-    ups = list(data.updates[: max(n_done, 0)])
+def added_instances(data, step: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+    """The instances added (status "new") by the first ``step`` updates of ``data.updates`` and
+    not removed since: (points (A, 3) float64 world metres, moved by the later updates' motions;
+    instance (A,) int32; colours (A, 3) uint8; {id: frame of the update that added it}). They are
+    not in the run's cloud, so the Scene panel draws them as a second point cloud."""
+    ups = list(data.updates[: max(int(step), 0)])
     res = [f.result for f in ups if f.result is not None]
+    none = (np.zeros((0, 3)), np.zeros(0, np.int32), np.zeros((0, 3), np.uint8), {})
     if not any(r.added for r in res):
-        return np.zeros((0, 3)), np.zeros(0, np.int32)
+        return none
     removed = {r.instance for x in res for r in x.instances if r.status == "removed"}
     M = update_motions(ups, 0)[len(ups)]
-    pts, inst = [], []
+    pts, inst, cols, frames = [], [], [], {}
     for x in res:
         for a in x.added:
             if a.instance in removed:
@@ -204,9 +270,18 @@ def added_points(data, u: int, after: bool = True) -> tuple[np.ndarray, np.ndarr
             T = M[a.instance]
             pts.append(a.points.astype(np.float64) @ T[:3, :3].T + T[:3, 3])
             inst.append(np.full(len(a.points), a.instance, np.int32))
+            cols.append(np.asarray(a.colors, np.uint8))
+            frames[int(a.instance)] = int(x.frame)
     if not pts:
-        return np.zeros((0, 3)), np.zeros(0, np.int32)
-    return np.concatenate(pts), np.concatenate(inst)
+        return none
+    return np.concatenate(pts), np.concatenate(inst), np.concatenate(cols), frames
+
+
+def added_points(data, u: int, after: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """``added_instances``' points and ids in ``updated_scene``'s scene (after update ``u``, or
+    just before it)."""
+    pts, inst, _, _ = added_instances(data, u + 1 if after else u)
+    return pts, inst
 
 
 def updated_labels(data, u: int, idx: np.ndarray, after: bool = True) -> tuple[np.ndarray, np.ndarray]:

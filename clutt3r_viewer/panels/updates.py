@@ -1,41 +1,58 @@
 """The Updates tab: post-interaction frames (shown only when a loader provides some).
 
-Choosing an update shows the scene after it: the cloud's displaced instances move to their
-updated poses (their ``T_world`` composed along the chain) and removed instances turn pale
-where they were last seen (colour layer "update", ``update_sources.UpdateSceneLayer``). The
-"After the update" checkbox switches to the scene just before it (after the previous update),
-so the two can be compared in place. Instances an update added (status "new") are not in the
-run's cloud: they are drawn as a second point cloud ("/updates/added", ``update_sources.added_points``).
+Choosing an update shows the scene after it in EVERY tab and colour mode (``Session.set_scene``,
+``clutt3r_viewer.scene_step``): displaced instances at their updated poses (their ``T_world``
+composed along the chain), removed instances pale where they were last seen, and the instances
+the updates added (status "new") drawn as a second cloud by the Scene panel, coloured and
+selectable like the others. The "After the update" checkbox switches to the scene just before
+it (after the previous update), so the two can be compared in place. The timeline lists, per
+update of the chain, what it removed, displaced (how far, how much it turned) and added; the
+step shown is marked.
 """
 
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-import numpy as np
-
 from clutt3r_viewer.panels.base import IMAGE_MAX_WIDTH, Change, Panel, downscale_step
+from clutt3r_viewer.scene_step import StepSummary, chain_steps
 
 if TYPE_CHECKING:
     import viser
 
     from clutt3r_viewer.app import Session, ViewerApp
 
-__all__ = ["UpdatesPanel", "update_positions"]
+__all__ = ["UpdatesPanel", "timeline_markdown"]
 
 INITIAL = "_-1 = the initial segmentation_"
-AFTER = "_the scene **after** this update: displaced instances moved to their new poses, removed ones pale_"
+AFTER = "_the scene **after** this update (in every tab): displaced instances moved to their new poses, removed ones pale, added ones drawn_"
 BEFORE = "_the scene **before** this update (after the previous one)_"
 
 
-def update_positions(s: "Session") -> np.ndarray | None:
-    """(M, 3) world positions of the displayed points (``s.lod_idx``) in the Updates tab's scene
-    (the Scene panel moves the cloud there), or None outside it (the run's own positions)."""
-    if s.state.color_mode != "update" or not 0 <= s.state.update < len(s.app.data.updates):
-        return None
-    from clutt3r_viewer.panels.update_sources import updated_scene
+def _ids(ids) -> str:
+    return ", ".join(f"I{k}" for k in ids)
 
-    return updated_scene(s.app.data, s.state.update, s.lod_idx, s.state.update_after)[0]
+
+def timeline_markdown(steps: tuple[StepSummary, ...], shown: int) -> str:
+    """The chain as markdown, one line per update; ``shown`` = updates applied to the scene shown
+    (0 = the initial segmentation), its line marked."""
+    mark = lambda n: "▶ " if n == shown else ""  # noqa: E731
+    lines = [f"{mark(0)}0 · the run (initial segmentation)"]
+    for st in steps:
+        parts = []
+        if st.removed:
+            parts.append(f"removed {_ids(st.removed)}")
+        if st.displaced:
+            parts.append("displaced " + ", ".join(f"I{k} ({m * 100:.1f} cm, {a:.0f}°)" for k, m, a in st.displaced))
+        if st.added:
+            parts.append(f"**new** {_ids(st.added)}")
+        if st.occluded:
+            parts.append(f"occluded {_ids(st.occluded)}")
+        text = f"{mark(st.step)}{st.step} · frame {st.frame}: " + ("; ".join(parts) if parts else "nothing changed")
+        lines.append(f"**{text}**" if st.step == shown else text)
+    if shown == 0:
+        lines[0] = f"**{lines[0]}**"
+    return "**Timeline**\n\n" + "  \n".join(lines)
 
 
 class UpdatesPanel(Panel):
@@ -43,9 +60,8 @@ class UpdatesPanel(Panel):
     frame: "viser.GuiSliderHandle[int]"
     after: "viser.GuiCheckboxHandle"
     text: "viser.GuiMarkdownHandle"
+    timeline: "viser.GuiMarkdownHandle"
     image: "viser.GuiImageHandle | None" = None
-    added: "viser.PointCloudHandle | None" = None
-    """The instances the shown updates added (status "new"): not in the run's cloud (update_sources.added_points)."""
 
     @classmethod
     def available(cls, app: "ViewerApp") -> bool:
@@ -58,30 +74,18 @@ class UpdatesPanel(Panel):
         self.after = gui.add_checkbox("After the update", initial_value=s.state.update_after,
                                       hint="checked: the scene after the chosen update; unchecked: just before it")
         self.after.on_update(lambda ev: self.set_after(s, bool(self.after.value)))
+        self.timeline = gui.add_markdown(timeline_markdown(chain_steps(s.app.data), s.scene_step()))
         self.text = gui.add_markdown(INITIAL)
 
-    def _show(self, s: "Session") -> None:
-        if any(f.point_instance is not None for f in s.app.data.updates):
-            s.state.color_mode = "update"
-        s.changed(Change.COLOUR)
-
     def set_update(self, s: "Session", u: int) -> None:
-        with s.lock:
-            if u == s.state.update:
-                return
-            s.state.update = int(u)
-            self._show(s)
+        s.set_scene(int(u))
 
     def set_after(self, s: "Session", after: bool) -> None:
         """Show the scene after (True) or just before (False) the chosen update."""
-        with s.lock:
-            if after == s.state.update_after and s.state.color_mode == "update":
-                return
-            s.state.update_after = bool(after)
-            self._show(s)
+        s.set_scene(s.state.update, bool(after))
 
     def refresh(self, s: "Session", change: Change) -> None:
-        if not change & Change.COLOUR:
+        if not change & (Change.COLOUR | Change.SCENE):
             return
         ups = s.app.data.updates
         u = s.state.update
@@ -89,7 +93,7 @@ class UpdatesPanel(Panel):
             self.frame.value = u
         if bool(self.after.value) != s.state.update_after:
             self.after.value = s.state.update_after
-        self._draw_added(s)
+        self.timeline.content = timeline_markdown(chain_steps(s.app.data), s.scene_step())
         if not 0 <= u < len(ups):
             self.text.content = INITIAL
             return
@@ -103,21 +107,3 @@ class UpdatesPanel(Panel):
                     self.image = s.client.gui.add_image(upd.rgb[::step, ::step], format="jpeg")
             else:
                 self.image.image = upd.rgb[::step, ::step]
-
-    def _draw_added(self, s: "Session") -> None:
-        """The added instances of the scene shown (after / before the chosen update), coloured by id."""
-        if self.added is not None:
-            self.added.remove()
-            self.added = None
-        u = s.state.update
-        if s.state.color_mode != "update" or not 0 <= u < len(s.app.data.updates):
-            return
-        from clutt3r_viewer.data import label_colors
-        from clutt3r_viewer.panels.update_sources import added_points
-
-        pts, inst = added_points(s.app.data, u, s.state.update_after)
-        if len(pts):
-            centre = s.app.data.centre
-            self.added = s.client.scene.add_point_cloud(
-                "/updates/added", (pts - centre).astype(np.float32), label_colors(inst), point_size=s.app.point_size,
-                point_shape="rounded", position=centre)

@@ -67,10 +67,15 @@ def test_added_instances_are_loaded_moved_and_dropped_along_the_chain(tiny_run_d
     np.testing.assert_allclose(added_points(d, 2, after=False)[0], p, atol=1e-9)
 
 
-def test_updates_tab_draws_the_added_instances(tiny_run_dir, tiny_seg, tmp_path):
+def test_scene_panel_draws_the_added_instances(tiny_run_dir, tiny_seg, tmp_path):
+    """The Scene panel draws the added instances of the scene shown as a second cloud (session 7:
+    in every colour mode, ``clutt3r_viewer.scene_step``), recolours it in place, removes it once
+    they are gone."""
     import clutt3r_viewer.panels.update_sources  # noqa: F401
+    from clutt3r_viewer.data import label_colors
     from clutt3r_viewer.loading import load_viewer_data
-    from clutt3r_viewer.panels.updates import UpdatesPanel
+    from clutt3r_viewer.panels.scene import ScenePanel
+    from clutt3r_viewer.scene_step import shown_scene
 
     run = tmp_path / "run"
     shutil.copytree(tiny_run_dir, run)
@@ -81,6 +86,7 @@ def test_updates_tab_draws_the_added_instances(tiny_run_dir, tiny_seg, tmp_path)
     class Handle:
         def __init__(self, name, points, colors, position):
             self.args = (name, points, colors, position)
+            self.colors = colors
             drawn.append(self)
             self.removed = False
 
@@ -89,18 +95,18 @@ def test_updates_tab_draws_the_added_instances(tiny_run_dir, tiny_seg, tmp_path)
 
     scene = SimpleNamespace(add_point_cloud=lambda name, points, colors, position, **kw: Handle(name, points, colors,
                                                                                                   position))
-    s = SimpleNamespace(state=SimpleNamespace(update=1, update_after=True, color_mode="update"),
-                        app=SimpleNamespace(data=d, point_size=0.004), client=SimpleNamespace(scene=scene))
-    panel = UpdatesPanel.__new__(UpdatesPanel)
-    panel.added = None
-    panel._draw_added(s)
+    s = SimpleNamespace(app=SimpleNamespace(data=d, point_size=0.004), client=SimpleNamespace(scene=scene))
+    panel = ScenePanel.__new__(ScenePanel)
+    panel.cloud = SimpleNamespace(point_size=0.004)
+    sc = shown_scene(d, 2, np.arange(len(tiny_seg.points)))  # after update 2: moved 3 cm along x
+    panel._draw_added(s, (sc.added_points, sc.added_instance, label_colors(sc.added_instance)))
     (h,) = drawn
     name, p, cols, position = h.args
-    assert name == "/updates/added" and len(p) == len(pts)
+    assert name == "/cloud_added" and len(p) == len(pts)
     np.testing.assert_allclose(p + np.asarray(position), pts + [0.03, 0.0, 0.0], atol=1e-5)
-    s.state.update = 2  # the update that removed it: the cloud goes
-    panel._draw_added(s)
+    grey = np.full((len(pts), 3), 128, np.uint8)
+    panel._draw_added(s, (sc.added_points, sc.added_instance, grey))  # same points: colours only
+    assert len(drawn) == 1 and h.colors is grey and not h.removed
+    s3 = shown_scene(d, 3, np.arange(len(tiny_seg.points)))  # the update that removed it: the cloud goes
+    panel._draw_added(s, (s3.added_points, s3.added_instance, label_colors(s3.added_instance)))
     assert h.removed and panel.added is None and len(drawn) == 1
-    s.state.update, s.state.color_mode = 0, "instance"  # another colour mode: nothing drawn
-    panel._draw_added(s)
-    assert panel.added is None and len(drawn) == 1
