@@ -168,6 +168,7 @@ def load_bop_scene(
     mask_dir: str = "mask_visib",
     categories: Mapping[int, str] | None = None,
     gt_voxel_m: float = GT_POINT_VOXEL_M,
+    load_gt: bool = True,
 ) -> Scene:
     """Load one BOP scene folder (see the module docstring) as a Scene.
 
@@ -180,6 +181,8 @@ def load_bop_scene(
         mask_dir: folder of per-instance visible masks used for the ground truth.
         categories: BOP ``obj_id`` -> category name; objects not in it get ``obj_{obj_id:06d}``.
         gt_voxel_m: voxel size (metres) of the labelled ground-truth points.
+        load_gt: False: ``scene_gt.json`` and ``mask_dir`` are not read (no ground truth; what
+            a segmentation needs).
 
     Ground truth (only when ``scene_gt.json`` exists): one ObjectInfo per instance of
     the first loaded image, ``T_world_object`` from that image's ``cam_R_m2c`` /
@@ -233,7 +236,7 @@ def load_bop_scene(
             raise SceneFileError(cpath, f"{where}: 'depth_scale' must be a positive number, got {scale!r}")
         parsed[im] = (K, _invert(T_camera_world), float(scale))
 
-    gt_objs, gt_lists = _parse_gt(root, frame_ids, categories, parsed)
+    gt_objs, gt_lists = _parse_gt(root, frame_ids, categories, parsed) if load_gt else (None, None)
     vis_dir = root / mask_dir
     use_vis = gt_lists is not None and vis_dir.is_dir()
 
