@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 
 from clutt3r_core.scene import Scene, View
@@ -67,10 +69,12 @@ def instance_overlay(points: np.ndarray, instance: np.ndarray, view: View, alpha
     bh, bw = y1 - y0 + 1, x1 - x0 + 1
     Wb = bw + 2 * r
     cell = ((v - y0) * Wb + (u - x0))[nearest_first]
-    first_cell, first_rank = np.unique(cell, return_index=True)  # each cell's first = nearest point
-    # float32 holds every rank below _FLOAT_RANKS exactly, for OpenCV's erosion
-    canvas = np.full((bh + 2 * r) * Wb, none, np.float32 if none < _FLOAT_RANKS else np.int64)
-    canvas[first_cell] = first_rank
+    # each cell's smallest rank (its nearest point): an unbuffered minimum, not np.unique's
+    # second sort (0.7 vs 8.6 ms for 157 k points; the same ranks); float32 holds every rank
+    # below _FLOAT_RANKS exactly, for OpenCV's erosion
+    dtype = np.float32 if none < _FLOAT_RANKS else np.int64
+    canvas = np.full((bh + 2 * r) * Wb, none, dtype)
+    np.minimum.at(canvas, cell, np.arange(none, dtype=dtype))
     canvas = canvas.reshape(bh + 2 * r, Wb)
     if none < _FLOAT_RANKS:
         # OpenCV's erosion of a rectangle is the same minimum, far faster than numpy passes
@@ -108,15 +112,20 @@ def instance_overlay(points: np.ndarray, instance: np.ndarray, view: View, alpha
 
 
 def overview_sheet(points: np.ndarray, instance: np.ndarray, scene: Scene, max_views: int = 4,
-                   width: int = 480) -> np.ndarray:
-    """Up to ``max_views`` initial views with instance overlays, tiled in a row, ``width`` px each."""
-    import cv2
+                   width: int = 480, map: Callable = map) -> np.ndarray:  # noqa: A002
+    """Up to ``max_views`` initial views with instance overlays, tiled in a row, ``width`` px each.
 
+    ``map``: how the tiles are drawn, e.g. a thread pool's ``map`` (numpy and OpenCV release
+    the GIL for most of a tile; the ``clutt3r segment`` command draws them beside ``save_run``).
+    """
     views = sorted(scene.initial_views, key=lambda v: v.frame)
     pick = np.linspace(0, len(views) - 1, min(max_views, len(views))).round().astype(int)
-    tiles = []
-    for i in pick:
-        ov = instance_overlay(points, instance, views[i])
-        h = int(round(ov.shape[0] * width / ov.shape[1]))
-        tiles.append(cv2.resize(ov, (width, h), interpolation=cv2.INTER_AREA))
-    return np.concatenate(tiles, axis=1)
+    return np.concatenate(list(map(lambda i: _tile(points, instance, views[i], width), pick)), axis=1)
+
+
+def _tile(points: np.ndarray, instance: np.ndarray, view: View, width: int) -> np.ndarray:
+    import cv2
+
+    ov = instance_overlay(points, instance, view)
+    h = int(round(ov.shape[0] * width / ov.shape[1]))
+    return cv2.resize(ov, (width, h), interpolation=cv2.INTER_AREA)
