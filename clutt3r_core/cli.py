@@ -144,6 +144,10 @@ def main(argv: list[str] | None = None) -> None:
     args, debug = _debug_requested(list(sys.argv[1:] if argv is None else argv))
     _quiet_third_party()
     _one_blas_thread()
+    if args[:1] == ["segment"]:  # its scene loads on a thread while tyro is imported and parses
+        from clutt3r_core.commands import scene_prefetch
+
+        scene_prefetch.start(args[1:])
     import tyro
 
     from clutt3r_core.errors import Clutt3rError

@@ -38,6 +38,7 @@ def segment_command(
     from rich.console import Console
     from rich.markup import escape
 
+    from clutt3r_core.commands import scene_prefetch
     from clutt3r_core.commands.masks import mask_choice
     from clutt3r_core.io import load_scene
     from clutt3r_core.io.images import write_png
@@ -52,7 +53,11 @@ def segment_command(
     with ThreadPoolExecutor(1) as pool:
         preparing = pool.submit(_prepare, config.embedder)
         with console.status(f"loading {scene}"):
-            sc = load_scene(scene)
+            # the CLI may have begun loading it before parsing (commands.scene_prefetch); the
+            # ground truth is never read here (it does not enter the segmentation)
+            sc = scene_prefetch.take(scene)
+            if sc is None:
+                sc = load_scene(scene, load_gt=False)
         segment, save_run, overview_sheet, embedder = preparing.result()  # re-raises its error
     masks = mask_choice(mask_options)
     if masks != "auto" or not all(v.masks is not None for v in sc.initial_views):
@@ -64,10 +69,11 @@ def segment_command(
         console.print(f"mask candidates: {n} on {len(seg.masks.frames)} views in {seg.masks.seconds:.1f} s")
     # the folder load_scene read (a release sample's data/ inside SCENE), so the viewer finds the images
     # (save_run also writes generated candidates to OUT/instance_masks/ and their generator to run.json)
-    # overview.png is drawn on a second thread while save_run writes (numpy, OpenCV and zlib
-    # release the GIL; neither reads what the other writes): issue 13, whole-command wall time
-    with ThreadPoolExecutor(1) as pool:
-        sheet = pool.submit(overview_sheet, seg.points, seg.instance, sc)
+    # overview.png's tiles are drawn on two threads while save_run writes (numpy, OpenCV and
+    # zlib release the GIL; neither reads what the other writes): issue 13, whole-command wall
+    # time. Three workers: one assembles the sheet and waits while the other two draw.
+    with ThreadPoolExecutor(3) as pool:
+        sheet = pool.submit(overview_sheet, seg.points, seg.instance, sc, map=pool.map)
         save_run(seg, out, scene_root=sc.root if sc.root is not None else scene)
         write_png(Path(out) / "overview.png", sheet.result(), sub_filter=True)  # re-raises the drawing's error
     for w in seg.warnings:  # also in OUT/run.json; soft_wrap: one line each, however narrow the terminal
