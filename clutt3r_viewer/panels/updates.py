@@ -45,7 +45,7 @@ def timeline_markdown(steps: tuple[StepSummary, ...], shown: int) -> str:
         if st.displaced:
             parts.append("displaced " + ", ".join(f"I{k} ({m * 100:.1f} cm, {a:.0f}°)" for k, m, a in st.displaced))
         if st.added:
-            parts.append(f"**new** {_ids(st.added)}")
+            parts.append(f"_new_ {_ids(st.added)}")  # italic: bold inside the bold current line would not nest
         if st.occluded:
             parts.append(f"occluded {_ids(st.occluded)}")
         text = f"{mark(st.step)}{st.step} · frame {st.frame}: " + ("; ".join(parts) if parts else "nothing changed")

@@ -52,13 +52,16 @@ def new_points(seg) -> np.ndarray:
 NEW_RGB = (250, 40, 200)
 
 
-def build_chain(seg, run: Path) -> int:
-    """Write the three updates under ``run/updates``; returns K, the added instance's id."""
+def build_chain(seg, run: Path, embedding: np.ndarray | None = None) -> int:
+    """Write the three updates under ``run/updates``; returns K, the added instance's id.
+    ``embedding``: the added instance's (its mask's) embedding, default a unit axis."""
     s0 = state_from_segmentation(seg, run=run)
     k = next_instance_id(s0)
     pts = new_points(seg)
     emb = np.zeros(s0.embeddings.shape[1], np.float32)
     emb[0] = 1.0
+    if embedding is not None:
+        emb = np.asarray(embedding, np.float32) / np.linalg.norm(embedding)
     recs = [_moved(0, SHIFT_0, N_ITER[0]) if i == 0 else InstanceUpdate(int(i), "removed" if i == 2 else "static",
                                                                             None if i == 2 else 0.9,
                                                                             None if i == 2 else 0.9, None)

@@ -68,7 +68,7 @@ def test_the_timeline_says_what_each_update_did(chain):
     assert s3.removed == (k,)
     md = timeline_markdown(chain_steps(d), 2)
     lines = md.split("\n")
-    assert f"1 · frame 8: removed I2; displaced I0 (5.0 cm, 0°); **new** I{k}" in md
+    assert f"1 · frame 8: removed I2; displaced I0 (5.0 cm, 0°); _new_ I{k}" in md
     assert sum("▶" in ln for ln in lines) == 1 and "▶ 2 · frame 9" in md and f"removed I{k}" in lines[-1]
 
 
