@@ -32,7 +32,7 @@ def test_plan_select_and_export(tiny_data, tmp_path):
     try:
         s = SimpleNamespace(client=server, lock=threading.RLock(), state=SessionState(),
                             app=SimpleNamespace(data=tiny_data, annotations=SimpleNamespace(run_dir=tmp_path)),
-                            notify=lambda title, body: notes.append(body))
+                            notify=lambda title, body: notes.append(body), scene_step=lambda: 0)  # the run, no update
         p = GraspsPanel()
         assert GraspsPanel.available(s.app)
         p.build(s)

@@ -18,7 +18,7 @@ def _session(data):
     state = SimpleNamespace(query="", query_best=-1, query_scores=None, color_mode="instance")
     changes = []
     s = SimpleNamespace(app=SimpleNamespace(text_embedder=None, data=data), lock=threading.Lock(), state=state,
-                        changed=changes.append)
+                        changed=changes.append, scene_step=lambda: 0)  # the run itself (no update shown)
     return s, changes
 
 

@@ -136,3 +136,35 @@ def test_every_colour_layer_colours_the_added_instances(chain):
     mid = layer_added_colors(layer_named("query"), inp, st, inst, rgb)
     assert not np.all(mid == HIGHLIGHT) and not np.all(mid == GREY)  # on the ramp, by its score
     assert layer_named("query").available(inp, st)  # scores for the run's ids and the added one
+
+
+def test_a_language_query_after_an_update_ranks_the_scene_then(tiny_run_dir, tiny_seg, tmp_path, monkeypatch):
+    """The language backend describes the run's masks only: after update 1 the removed instance is
+    not ranked (and cannot be the answer), the added one is listed as not ranked."""
+    import threading
+
+    import clutt3r_core.query as cq
+    import clutt3r_viewer.panels.query as qp
+    import clutt3r_viewer.panels.update_sources  # noqa: F401
+    from clutt3r_viewer.loading import load_viewer_data
+    from clutt3r_viewer.scene_step import shown_scene
+    from tests.core.query._fake import FakeGrounder
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run_dir, run)
+    k = build_chain(tiny_seg, run)
+    d = load_viewer_data(run)  # with the scene's images: the backend describes their masks
+    monkeypatch.setattr(qp, "language_backend_name", lambda: "fake-ground")
+    monkeypatch.setattr(cq, "create_grounder", lambda name=None: FakeGrounder())
+    state = SimpleNamespace(query="", query_best=-1, query_scores=None, color_mode="instance")
+    s = SimpleNamespace(app=SimpleNamespace(text_embedder=None, data=d), lock=threading.Lock(), state=state,
+                        changed=lambda c: None, scene_step=lambda: 1,
+                        scene=lambda: shown_scene(d, 1, np.arange(len(d.seg.points))))
+    panel = qp.QueryPanel()
+    panel.result = SimpleNamespace(content="")
+    for text in ("red", "green", "blue", "yellow"):
+        panel.run_query(s, f"the {text} thing")
+        sc = state.query_scores
+        assert sc is not None and len(sc) == k + 1 and np.isnan(sc[2]) and np.isnan(sc[k])
+        assert state.query_best not in (2, k) and state.query_best == int(np.nanargmax(sc))
+        assert f"not ranked: I{k}" in panel.result.content and "removed, not ranked: I2" in panel.result.content
