@@ -42,6 +42,7 @@ from clutt3r_core.update.associate import Association, project_depth
 from clutt3r_core.update.depth import (PlaceCheck, Registration, _consistency, explained_pixels, mask_points,
                                        place_check, prepare_model, register, start_rotations, support_plane,
                                        unexplained_regions)
+from clutt3r_core.update.depth_refine import refined_registration
 from clutt3r_core.update.project import mask_iou, silhouette
 from clutt3r_core.update.types import LOSS_NAMES, PoseResult, PoseTrace, UpdateConfig
 
@@ -366,6 +367,17 @@ def _register_all(state, view: View, config: UpdateConfig, ks: list[int], target
                     break
             else:
                 continue
+            if config.pose.registration_refine_iterations:
+                # the one-way ICP's partial-view bias (depth_refine.py); the refined pose replaces
+                # the ICP's only when it passes the same tests
+                ref = refined_registration(reg, prepared, pts, cam, view.depth, cc.in_place_tol,
+                                           iterations=config.pose.registration_refine_iterations,
+                                           radius_start=config.pose.registration_refine_radius[0],
+                                           radius_end=config.pose.registration_refine_radius[1])
+                if ref is not reg and ref.fitness >= cc.accept_fitness and ref.consistency >= cc.accept_consistency:
+                    iou_ref = fit_iou(model, ref.T_world, cam, state.voxel_size, occ, target)
+                    if iou_ref >= accept_iou(k):
+                        reg, iou = ref, iou_ref
             rank = reg.score * iou
             if cc.fit_colour_weight and view.rgb is not None:
                 # two objects of one shape fit one target alike (easy_501: a baseball and an

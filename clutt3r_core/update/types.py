@@ -142,6 +142,16 @@ class PoseConfig:
     placement score's photometric factor)."""
     registration_yaw_step_deg: float = 30.0
     """Ours: start yaws of the depth registration (with the six up-axis placements)."""
+    registration_refine_iterations: int = 15
+    """Ours (session 7): Gauss-Newton steps of the symmetric point-to-plane refinement of each
+    accepted depth registration (``update/depth_refine.py``; 0 = off). The one-way ICP left a
+    4-9 deg residual on partial views; measured on the displaced objects of the tuning sets
+    300-900, median rotation error up to symmetry 1.9 -> 0.8 deg (docs/update.md, "Session 7:
+    rotation")."""
+    registration_refine_radius: tuple[float, float] = (0.015, 0.005)
+    """Ours, metres: the refinement's pair radius, first and last step (linear between): the
+    ICP's last radius (1.5 x in_place_tol), down to ~3x the 1.7 mm stored-to-observed noise floor
+    measured at the true poses."""
 
     def __post_init__(self) -> None:
         if not 0.0 < self.tau_iou <= 1.0:
