@@ -42,7 +42,7 @@ from clutt3r_core.update.associate import Association, project_depth
 from clutt3r_core.update.depth import (PlaceCheck, Registration, _consistency, explained_pixels, mask_points,
                                        place_check, prepare_model, register, start_rotations, support_plane,
                                        unexplained_regions)
-from clutt3r_core.update.depth_refine import refined_registration
+from clutt3r_core.update.depth_refine import flip_check, refined_registration
 from clutt3r_core.update.project import mask_iou, silhouette
 from clutt3r_core.update.types import LOSS_NAMES, PoseResult, PoseTrace, UpdateConfig
 
@@ -378,6 +378,17 @@ def _register_all(state, view: View, config: UpdateConfig, ks: list[int], target
                     iou_ref = fit_iou(model, ref.T_world, cam, state.voxel_size, occ, target)
                     if iou_ref >= accept_iou(k):
                         reg, iou = ref, iou_ref
+            if config.pose.registration_flip_check and view.rgb is not None:
+                flip, flipped = flip_check(reg, prepared, pts, cam, view.depth, view.rgb, cc.in_place_tol,
+                                           score_margin=config.pose.registration_flip_margins[0],
+                                           photo_margin=config.pose.registration_flip_margins[1],
+                                           iterations=config.pose.registration_refine_iterations,
+                                           radius_start=config.pose.registration_refine_radius[0],
+                                           radius_end=config.pose.registration_refine_radius[1])
+                if flipped and flip.fitness >= cc.accept_fitness and flip.consistency >= cc.accept_consistency:
+                    iou_flip = fit_iou(model, flip.T_world, cam, state.voxel_size, occ, target)
+                    if iou_flip >= accept_iou(k):
+                        reg, iou = flip, iou_flip
             rank = reg.score * iou
             if cc.fit_colour_weight and view.rgb is not None:
                 # two objects of one shape fit one target alike (easy_501: a baseball and an

@@ -39,7 +39,7 @@ from clutt3r_core.normals import _one_openmp_thread
 from clutt3r_core.scene import Camera
 from clutt3r_core.update.depth import RegistrationModel, _depth_at
 
-__all__ = ["Refinement", "refine_registration", "refined_registration"]
+__all__ = ["Refinement", "flip_check", "refine_registration", "refined_registration"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -149,3 +149,49 @@ def refined_registration(reg, model: RegistrationModel, scene: np.ndarray, camer
     cost = ref.cost if reg.path_cost is None else np.concatenate([reg.path_cost, ref.cost])
     return replace(reg, T_world=T, score=fitness * cons, fitness=fitness, consistency=cons, rmse=rmse, path=path,
                    path_cost=cost, alternatives=())
+
+
+def flip_check(reg, model: RegistrationModel, scene: np.ndarray, camera: Camera, depth: np.ndarray,
+               rgb: np.ndarray, tol: float, *, score_margin: float = 0.05, photo_margin: float = 0.02,
+               iterations: int = 15, radius_start: float = 0.015, radius_end: float = 0.005):
+    """The half-turn ambiguity of a registration, decided by colour: ``reg``'s pose turned by
+    180 deg about each principal axis of the model (through its centroid), each refined
+    (``refined_registration``); the one of least colour error (``depth._consistency``'s photo
+    term: mean absolute difference, 0-1, between the model's stored colours on the observed
+    surface and ``rgb``) replaces ``reg`` when its score (fitness x consistency) is within
+    ``score_margin`` of ``reg``'s (the geometry cannot tell them apart) and its colour error is
+    lower by more than ``photo_margin``. Returns (registration, whether it was replaced).
+
+    Why: a box or a flat object is nearly the same shape turned by a half turn about an axis, and
+    the registration picks between such poses by geometry (and then by the least rotation);
+    a printed texture is not symmetric. Measured on the cached pairs (docs/update.md, "Session 7:
+    rotation")."""
+    from dataclasses import replace
+
+    from clutt3r_core.update.depth import _consistency
+
+    if model.colors is None or rgb is None:
+        return reg, False
+    from scipy.spatial.transform import Rotation as _R
+
+    p0 = _consistency(model.points, reg.T_world, camera, depth, tol, model.colors, rgb)[1]
+    if not np.isfinite(p0):
+        return reg, False
+    c = model.points.mean(axis=0)
+    _, V = np.linalg.eigh(np.cov((model.points - c).T))
+    best, best_p = reg, p0
+    for axis in V.T:
+        S = np.eye(4)
+        S[:3, :3] = _R.from_rotvec(axis * np.pi).as_matrix()
+        S[:3, 3] = c - S[:3, :3] @ c  # the half turn about the model's own axis, in its old pose
+        # the path so far is kept: the replay shows the ICP, its refinement, then the half turn's
+        start = replace(reg, T_world=reg.T_world @ S, alternatives=())
+        r = refined_registration(start, model, scene, camera, depth, tol, iterations=iterations,
+                                 radius_start=radius_start, radius_end=radius_end)
+        if r is start:
+            continue
+        p = _consistency(model.points, r.T_world, camera, depth, tol, model.colors, rgb)[1]
+        if np.isfinite(p) and r.score >= reg.score - score_margin and p < p0 - photo_margin and p < best_p:
+            best, best_p = r, p
+    return best, best is not reg
+

@@ -152,6 +152,16 @@ class PoseConfig:
     """Ours, metres: the refinement's pair radius, first and last step (linear between): the
     ICP's last radius (1.5 x in_place_tol), down to ~3x the 1.7 mm stored-to-observed noise floor
     measured at the true poses."""
+    registration_flip_check: bool = True
+    """Ours (session 7): with colours, an accepted depth registration is compared with its
+    half turns about the model's principal axes (``depth_refine.flip_check``): a nearly
+    symmetric shape with an asymmetric texture (a printed box) is registered 180 deg off as
+    often as not (docs/update.md, "Session 7: rotation")."""
+    registration_flip_margins: tuple[float, float] = (0.05, 0.02)
+    """Ours: (score, colour) margins of ``flip_check``: a half turn replaces the pose when its
+    fitness x consistency is at most the first below the pose's and its mean colour error (0-1)
+    at least the second below. Set before measuring (a geometric tie; 5 grey levels of 255),
+    not tuned."""
 
     def __post_init__(self) -> None:
         if not 0.0 < self.tau_iou <= 1.0:

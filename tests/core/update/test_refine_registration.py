@@ -14,7 +14,7 @@ from hypothesis import strategies as st_
 from scipy.spatial.transform import Rotation
 
 from clutt3r_core.update.depth import _consistency, mask_points, prepare_model, register, start_rotations
-from clutt3r_core.update.depth_refine import refine_registration, refined_registration
+from clutt3r_core.update.depth_refine import flip_check, refine_registration, refined_registration
 from clutt3r_core.update.types import PoseConfig, UpdateConfig
 from clutt3r_core.update.update import update_scene
 
@@ -144,3 +144,45 @@ def test_update_scene_refines_the_displaced_pose_and_can_turn_it_off():
     # measured: 2.08 -> 0.52 deg; both ~4.1 mm off, because this view's depth is splatted (it
     # sits up to ~4 mm in front of inclined faces; _raycast's exact depth is used above)
     assert ra < 1.0 and ra < rb - 1.0 and ta < tb + 0.0005, (ra, ta, rb, tb)
+
+
+def _coloured_case(yaw=25.0):
+    """_case with the view's colours (splatted RGB; the depth stays exact)."""
+    pts, cols, inst, st, c, T, moved = _pushed(yaw)
+    v, scene, model, c, T = _case(yaw)
+    rgb = render_view(moved, cols, inst, v.camera, frame=8).rgb
+    return v, rgb, scene, model, c, T
+
+
+def _half_turn(T, c):
+    """T preceded by a half turn about the vertical axis through the box's (old) centre: box 0
+    (6 x 4 x 6 cm, axis-aligned) maps onto itself, its +y and -y faces' colours swap."""
+    S = np.eye(4)
+    S[:3, :3] = np.diag([-1.0, -1.0, 1.0])
+    S[:3, 3] = c - S[:3, :3] @ c
+    return T @ S
+
+
+def test_a_half_turn_of_a_printed_box_is_turned_back_by_its_colours():
+    v, rgb, scene, model, c, T = _coloured_case()
+    reg = register(model, scene, v.camera, v.depth, starts=start_rotations(30.0), tol=0.01)
+    wrong = replace(reg, T_world=_half_turn(T, c), alternatives=())
+    assert _errors(wrong.T_world, T, c)[0] > 179.0
+    got, flipped = flip_check(wrong, model, scene, v.camera, v.depth, rgb, 0.01)
+    assert flipped and _errors(got.T_world, T, c)[0] < 1.0
+    # the geometry alone cannot tell: both poses fit the depth alike
+    assert abs(got.score - refined_registration(wrong, model, scene, v.camera, v.depth, 0.01).score) < 0.05
+    # the replay keeps the path that led to the half turn
+    assert len(got.path) == len(reg.path) + 15 and np.array_equal(got.path[-1], got.T_world)
+
+
+def test_the_right_side_stays_and_no_colours_change_nothing():
+    v, rgb, scene, model, c, T = _coloured_case()
+    reg = register(model, scene, v.camera, v.depth, starts=start_rotations(30.0), tol=0.01)
+    right = refined_registration(replace(reg, T_world=T), model, scene, v.camera, v.depth, 0.01)
+    got, flipped = flip_check(right, model, scene, v.camera, v.depth, rgb, 0.01)
+    assert not flipped and got is right
+    wrong = replace(reg, T_world=_half_turn(T, c))
+    assert flip_check(wrong, model, scene, v.camera, v.depth, None, 0.01) == (wrong, False)
+    bare = prepare_model(model.points)  # a model without colours
+    assert flip_check(wrong, bare, scene, v.camera, v.depth, rgb, 0.01) == (wrong, False)
