@@ -210,6 +210,8 @@ class TourPanel(Panel):
                        "fills in by itself when it is ready._" if pending else
                        f"_This run has nothing for this step ({step.needs})._")
 
+        if step.key not in ("removed", "pose") and s.scene_step() > 0:
+            s.set_scene(-1)  # the steps before the grasp show the run (every tab shows the scene chosen)
         if s.state.node >= 0 or s.state.view != view:  # the view (and node) of the step
             s.select_view(view)
         if node >= 0:

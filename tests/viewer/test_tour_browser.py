@@ -127,6 +127,9 @@ def test_the_tour_walks_the_whole_story(browser, tour_app, artifacts):  # noqa: 
     assert sess.state.color_mode == "replay" and tour.step == len(STEPS) - 1
     page.get_by_role("button", name="Previous").click()
     _wait(lambda: tour.step == len(STEPS) - 2, what="previous")
+    assert STEPS[-2].key == "removed" and sess.scene_step() == 1  # the scene after the update
+    page.get_by_role("button", name="Previous").click()  # a step before the grasp: the run again, in every tab
+    _wait(lambda: tour.step == len(STEPS) - 3 and sess.scene_step() == 0, what="back before the update")
 
     print(f"walk done: {time.perf_counter() - t_walk:.1f} s")
     # the tour's Download HTML: the standalone page of the run, as a file download
