@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from clutt3r_core.errors import SceneError, SceneFileError
-from clutt3r_core.io.images import io_threads, read_depth_mm, read_mask, read_rgb
+from clutt3r_core.io.images import io_threads, read_depth_mm, read_mask, read_rgb, release_freed_memory
 from clutt3r_core.io.sample_layout import _read_candidates, _read_json, _scan_masks
 from clutt3r_core.scene import Camera, GroundTruth, ObjectInfo, Scene, View, check_rigid
 
@@ -275,6 +275,7 @@ def load_bop_scene(
 
     with ThreadPoolExecutor(io_threads()) as pool:
         loaded = list(pool.map(load_view, frame_ids))  # frame_ids is sorted: views come in frame order
+    release_freed_memory()  # the decoding threads' arenas
     views = [v for v, _ in loaded]
     index = {v.frame: i for i, v in enumerate(views)}
 

@@ -42,6 +42,7 @@ from clutt3r_core.io.images import (
     read_label_png,
     read_masks,
     read_rgb,
+    release_freed_memory,
     write_png,
 )
 from clutt3r_core.scene import Camera, GroundTruth, MaskCandidates, ObjectInfo, Scene, View
@@ -214,6 +215,7 @@ def load_sample_layout(root: str | Path, *, load_masks: bool = True, load_gt: bo
 
     with ThreadPoolExecutor(io_threads()) as pool:
         views = list(pool.map(load_view, entries))
+    release_freed_memory()  # the decoding threads' arenas
     order = np.argsort([v.frame for v in views], kind="stable")
     views = [views[i] for i in order]
     index = {v.frame: i for i, v in enumerate(views)}
