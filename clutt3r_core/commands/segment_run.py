@@ -99,13 +99,18 @@ def run_segment(scene: Path, out: Path, config: SegmentConfig, mask_options: Mas
         console.print(f"mask candidates: {n} on {len(seg.masks.frames)} views in {seg.masks.seconds:.1f} s")
     # the folder load_scene read (a release sample's data/ inside SCENE), so the viewer finds the images
     # (save_run also writes generated candidates to OUT/instance_masks/ and their generator to run.json)
-    # overview.png's tiles are drawn on two threads while save_run writes (numpy, OpenCV and
-    # zlib release the GIL; neither reads what the other writes): issue 13, whole-command wall
-    # time. Three workers: one assembles the sheet and waits while the other two draw.
+    # overview.png's tiles are drawn on two threads while save_run writes, and the sheet is
+    # encoded there too (numpy, OpenCV and zlib release the GIL; neither reads what the other
+    # writes): issue 13, whole-command wall time. Three workers: one assembles and encodes the
+    # sheet, waiting while the other two draw its tiles.
+    def draw_overview() -> None:
+        sheet = overview_sheet(seg.points, seg.instance, sc, map=pool.map)
+        write_png(Path(out) / "overview.png", sheet, sub_filter=True)
+
     with ThreadPoolExecutor(3) as pool:
-        sheet = pool.submit(overview_sheet, seg.points, seg.instance, sc, map=pool.map)
+        drawing = pool.submit(draw_overview)
         save_run(seg, out, scene_root=sc.root if sc.root is not None else scene)
-        write_png(Path(out) / "overview.png", sheet.result(), sub_filter=True)  # re-raises the drawing's error
+        drawing.result()  # re-raises the drawing's error
     for w in seg.warnings:  # also in OUT/run.json; soft_wrap: one line each, however narrow the terminal
         console.print(f"[yellow]warning:[/] {escape(w.message)}", soft_wrap=True, highlight=False)
     t = seg.trace
