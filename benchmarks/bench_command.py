@@ -263,6 +263,12 @@ def main() -> None:
     args = ap.parse_args()
     args.work.mkdir(parents=True, exist_ok=True)
     current = _ref_tree(args.current, args.work) if args.current else ROOT
+    if not args.current:
+        # the children run with PYTHONDONTWRITEBYTECODE: without this, every module edited since
+        # its bytecode was written is compiled again in every process (the base tree is compiled)
+        subprocess.run([sys.executable, "-m", "compileall", "-q", str(ROOT / "clutt3r_core")], check=True,
+                       capture_output=True)
+    load_start = os.getloadavg()
     trees = {"current": current}
     if not args.no_base:
         trees = {"base": _ref_tree(args.base, args.work), "current": current}
@@ -299,9 +305,12 @@ def main() -> None:
                           file=sys.stderr)
         results.append(row)
     _print_table(results, list(trees))
+    load = (load_start, os.getloadavg())
+    print(f"\nload average (1, 5, 15 min) at the start {load[0][0]:.1f} {load[0][1]:.1f} {load[0][2]:.1f}, "
+          f"at the end {load[1][0]:.1f} {load[1][1]:.1f} {load[1][2]:.1f}")
     if args.out:
         args.out.write_text(json.dumps({"trees": {t: str(p) for t, p in trees.items()}, "base_ref": args.base,
-                                        "current_ref": args.current,
+                                        "current_ref": args.current, "load_average": load,
                                         "runs": args.runs, "results": results}, indent=1))
 
 
@@ -328,6 +337,15 @@ def _print_table(results: list[dict], trees: list[str]) -> None:
              t_whole)
         line(row["scene"], "whole command, peak RSS MiB (max)", {t: max(x["rss_mib"] for x in w[t]) for t in trees},
              "{:.0f}", t_rss)
+        line(row["scene"], "whole command, peak RSS MiB (median)",
+             {t: med(x["rss_mib"] for x in w[t]) for t in trees}, "{:.0f}", None)
+        if has_base:
+            # each current run against the base run just before it (the same moment's load): on a
+            # shared machine the load drifts between runs more than the change moves the medians
+            for what in ("wall", "cpu"):
+                r = [c[what] / b[what] for b, c in zip(w["base"], w["current"])]
+                print(f"| {row['scene']} | whole command, {what}: median of the paired current / base | | | "
+                      f"{med(r):.2f} (runs {min(r):.2f}-{max(r):.2f}) | |")
         if row["core"]:
             c = row["core"]
             line(row["scene"], "core, first call wall s (median)", {t: med(x[0] for x in c[t]["first"]) for t in trees},
