@@ -212,12 +212,25 @@ class EditPanel(Panel):
         else:
             self.sel = new
 
+    @staticmethod
+    def _show_run(s: "Session") -> bool:
+        """Edits apply to the run's labels at the run's positions: with an update shown (the
+        Updates tab; displaced instances elsewhere, added ones not the run's), show the run
+        instead and say so. True when it switched (the pick aimed at the other scene is dropped)."""
+        if s.scene_step() == 0:
+            return False
+        s.set_scene(-1)
+        s.notify("Edit", "the Edit tab corrects the run's segmentation: showing the run (before the updates); "
+                         "pick again")
+        return True
+
     def on_click(self, s: "Session", origin, direction, how: str = "set") -> int:
         """A click's world ray: select the front-most visible displayed point, grown by "Click picks".
-        Returns the picked point (-1: none; a "set" click on nothing clears)."""
-        d = s.app.data
-        if not self.click_selects.value:
+        Returns the picked point (-1: none; a "set" click on nothing clears). With an update shown,
+        shows the run instead (``_show_run``) and picks nothing."""
+        if not self.click_selects.value or self._show_run(s):
             return -1
+        d = s.app.data
         with s.lock:
             cand = self._candidates(s)
             shown = np.zeros(len(cand), bool)
@@ -241,7 +254,10 @@ class EditPanel(Panel):
 
     def on_rect(self, s: "Session", screen_min, screen_max, how: str = "set", camera: ScreenCamera | None = None) -> int:
         """A box on the canvas: the visible points inside it (all points, not only the displayed
-        level of detail, so an edit has no gaps). Returns how many it selected."""
+        level of detail, so an edit has no gaps). Returns how many it selected (0 and the run shown
+        instead when an update was shown, ``_show_run``)."""
+        if self._show_run(s):
+            return 0
         d = s.app.data
         cam = camera if camera is not None else ScreenCamera.from_viser(s.client.camera)
         with s.lock:

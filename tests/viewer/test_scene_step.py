@@ -168,3 +168,18 @@ def test_a_language_query_after_an_update_ranks_the_scene_then(tiny_run_dir, tin
         assert sc is not None and len(sc) == k + 1 and np.isnan(sc[2]) and np.isnan(sc[k])
         assert state.query_best not in (2, k) and state.query_best == int(np.nanargmax(sc))
         assert f"not ranked: I{k}" in panel.result.content and "removed, not ranked: I2" in panel.result.content
+
+
+def test_the_edit_tab_shows_the_run_before_it_picks():
+    """Edits apply to the run's labels at the run's positions: a pick aimed at an updated scene
+    switches the tab to the run (and says so) instead of selecting what lies there in the run."""
+    from clutt3r_viewer.panels.edit import EditPanel
+
+    calls = []
+    s = SimpleNamespace(scene_step=lambda: 1, set_scene=lambda u: calls.append(("scene", u)),
+                        notify=lambda title, body: calls.append(("notify", body)))
+    p = EditPanel.__new__(EditPanel)
+    p.click_selects = SimpleNamespace(value=True)
+    assert p.on_click(s, (0, 0, 1), (0, 0, -1)) == -1 and p.on_rect(s, (0, 0), (1, 1)) == 0
+    assert [c[0] for c in calls] == ["scene", "notify"] * 2 and calls[0] == ("scene", -1)
+    assert "showing the run" in calls[1][1]
