@@ -327,18 +327,27 @@ def export_updates_rerun(rec, data, max_points: int = 50_000) -> int:
     Entities: ``world/updates/points`` the moved instances' points on the timeline
     ``pose_iteration`` (the same steps as the Replay source), ``plots/update/loss/I<k>`` and
     ``plots/update/iou/I<k>`` per displaced instance on that timeline, ``updates/overlay`` the
-    before|after overlay and ``log/updates`` the status table on the timeline ``update``.
-    Returns the number of pose-iteration steps logged (0 without updates).
+    before|after overlay, ``log/updates`` the status table and ``world/updates/scene`` the scene
+    after each update (``scene_step.shown_scene``: displaced instances moved, removed ones left
+    out, added ones in, instance colours; at most ``max_points`` of the run's points) on the
+    timeline ``update``. Returns the number of pose-iteration steps logged (0 without updates).
     """
     import rerun as rr
 
-    from clutt3r_viewer.data import lod_indices
+    from clutt3r_viewer.data import label_colors, lod_indices
+    from clutt3r_viewer.scene_step import shown_scene
 
+    lod = lod_indices(len(data.seg.points), max_points)
     for u_i, u in enumerate(data.updates):
         rec.set_time("update", sequence=u_i + 1)
         if u.rgb is not None:
             rec.log("updates/overlay", rr.Image(np.ascontiguousarray(u.rgb)).compress(jpeg_quality=85))
         rec.log("log/updates", rr.TextLog(f"frame {u.frame}\n{u.text}"))
+        sc = shown_scene(data, u_i + 1, lod)
+        keep = ~sc.gone
+        rec.log("world/updates/scene", rr.Points3D(
+            np.concatenate([sc.points[keep], sc.added_points]).astype(np.float32),
+            colors=label_colors(np.concatenate([sc.instance[keep], sc.added_instance])), radii=0.003))
     src = update_pose_events(data)
     if src is None:
         return 0

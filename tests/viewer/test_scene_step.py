@@ -183,3 +183,37 @@ def test_the_edit_tab_shows_the_run_before_it_picks():
     assert p.on_click(s, (0, 0, 1), (0, 0, -1)) == -1 and p.on_rect(s, (0, 0), (1, 1)) == 0
     assert [c[0] for c in calls] == ["scene", "notify"] * 2 and calls[0] == ("scene", -1)
     assert "showing the run" in calls[1][1]
+
+
+def test_the_rerun_export_logs_the_scene_after_each_update(chain, tiny_seg):
+    import rerun as rr
+
+    from clutt3r_viewer.data import PALETTE
+    from clutt3r_viewer.panels.update_sources import export_updates_rerun
+
+    d, k = chain
+    log, t = [], [0]
+
+    class Rec:
+        def set_time(self, name, sequence):
+            if name == "update":
+                t[0] = sequence
+
+        def log(self, path, obj):
+            log.append((t[0], path, obj))
+
+    export_updates_rerun(Rec(), d, max_points=len(tiny_seg.points))
+    scenes = {u: o for u, p, o in log if p == "world/updates/scene"}
+    assert sorted(scenes) == [1, 2, 3]
+    pts = new_points(tiny_seg)
+    n_run = int((tiny_seg.instance != 2).sum())
+    for u, extra, shift in ((1, len(pts), 0.0), (2, len(pts), SHIFT_K), (3, 0, None)):
+        o = scenes[u]
+        assert isinstance(o, rr.Points3D)
+        xyz = np.asarray(o.positions.as_arrow_array().to_pylist(), np.float64)
+        cols = np.asarray(o.colors.as_arrow_array().to_pylist(), np.uint64)
+        assert len(xyz) == n_run + extra  # the removed instances left out (I2 from update 1, K from update 3)
+        if extra:  # the added cube, after the run's points, in its instance colour, moved by update 2
+            np.testing.assert_allclose(xyz[-extra:] - pts, [[shift, 0, 0]] * extra, atol=1e-5)
+            r, g, b = (int(c) for c in PALETTE[k % len(PALETTE)])
+            assert np.all(cols[-extra:] == (r << 24) | (g << 16) | (b << 8) | 255)
