@@ -233,8 +233,9 @@ class Session:
             self.state.instance = k
             self.changed(change)
 
-    def set_scene(self, update: int, after: bool | None = None) -> None:
-        """Show the scene after (``after``, else just before) update ``update`` (-1 = the run)."""
+    def set_scene(self, update: int, after: bool | None = None, update_colours: bool = True) -> None:
+        """Show the scene after (``after``, else just before) update ``update`` (-1 = the run),
+        in the "update" colours when ``update_colours`` (the Updates tab), else in the current ones."""
         with self.lock:
             st = self.state
             after = st.update_after if after is None else bool(after)
@@ -243,7 +244,7 @@ class Session:
             st.update, st.update_after = int(update), after
             if st.instance >= 0 and st.instance not in set(self.scene().present.tolist()):
                 st.instance = -1  # removed (or not added yet) in the scene now shown
-            if any(f.point_instance is not None for f in self.app.data.updates):
+            if update_colours and any(f.point_instance is not None for f in self.app.data.updates):
                 st.color_mode = "update"
             self.changed(Change.COLOUR | Change.SCENE | Change.INSTANCE)
 

@@ -24,7 +24,7 @@ if TYPE_CHECKING:
 
 __all__ = ["HIGHLIGHT", "LayerInput", "ColorLayer", "COLOR_LAYERS", "register_color_layer", "layer_named",
            "available_layers", "InstanceLayer", "RgbLayer", "ConfidenceLayer", "ReplayLayer", "QueryLayer",
-           "layer_added_colors", "ghost_removed", "GHOST_WHITE"]
+           "layer_added_colors", "ghost", "ghost_removed", "GHOST_WHITE"]
 
 HIGHLIGHT = np.array([255, 215, 0], np.uint8)
 
@@ -63,15 +63,20 @@ GHOST_WHITE = 0.75
 """Removed instances' points are drawn as their instance colour blended this much with white."""
 
 
-def ghost_removed(col: np.ndarray, scene, data: ViewerData) -> np.ndarray:
-    """``col`` with the points of instances removed by then (``scene.gone``, a ``ShownScene``)
-    drawn pale in their instance colour, where they were last seen."""
-    if not scene.gone.any():
+def ghost(col: np.ndarray, gone: np.ndarray, instance0: np.ndarray) -> np.ndarray:
+    """``col`` (M, 3) with the points ``gone`` (M,) bool drawn pale in the colour of their run
+    instance ``instance0`` (M,) (``GHOST_WHITE``): removed instances, where they were last seen."""
+    if not gone.any():
         return col
     col = col.copy()
-    own = label_colors(np.asarray(data.seg.instance)[scene.idx[scene.gone]]).astype(np.float32)
-    col[scene.gone] = np.round((1 - GHOST_WHITE) * own + GHOST_WHITE * 255).astype(np.uint8)
+    own = label_colors(np.asarray(instance0)[gone]).astype(np.float32)
+    col[gone] = np.round((1 - GHOST_WHITE) * own + GHOST_WHITE * 255).astype(np.uint8)
     return col
+
+
+def ghost_removed(col: np.ndarray, scene, data: ViewerData) -> np.ndarray:
+    """``ghost`` for the points of instances removed by the scene shown (a ``ShownScene``)."""
+    return ghost(col, scene.gone, np.asarray(data.seg.instance)[scene.idx])
 
 
 def layer_added_colors(layer: "ColorLayer", inp: LayerInput, state: SessionState, instance: np.ndarray,

@@ -20,6 +20,10 @@ import numpy as np
 __all__ = ["ShownScene", "shown_scene", "scene_step", "StepSummary", "chain_steps", "scene_grasp_request"]
 
 
+_CACHED_SCENES = 8
+"""Scenes ``shown_scene`` keeps per run (least recently built dropped first)."""
+
+
 def scene_step(update: int, after: bool, n_updates: int) -> int:
     """Updates applied to the scene a tab shows: update ``update`` (0-based, -1 = none) and
     the ones before it when ``after``, else only the ones before it."""
@@ -86,6 +90,14 @@ def shown_scene(data, step: int, idx: np.ndarray) -> ShownScene:
     hit = data._cache.get(key)
     if hit is not None and np.array_equal(hit.idx, idx):
         return hit
+    # a few scenes only: each holds (M, 3) float64 positions (24 MB at 1M points), and tabs
+    # step through a chain of updates at one or two levels of detail
+    keys = data._cache.setdefault("shown_keys", [])
+    if key in keys:
+        keys.remove(key)
+    while len(keys) >= _CACHED_SCENES:
+        data._cache.pop(keys.pop(0), None)
+    keys.append(key)
     seg = data.seg
     if step == 0:
         pts = np.asarray(seg.points, np.float64)[idx]

@@ -219,7 +219,7 @@ class EditPanel(Panel):
         instead and say so. True when it switched (the pick aimed at the other scene is dropped)."""
         if s.scene_step() == 0:
             return False
-        s.set_scene(-1)
+        s.set_scene(-1, update_colours=False)
         s.notify("Edit", "the Edit tab corrects the run's segmentation: showing the run (before the updates); "
                          "pick again")
         return True

@@ -35,7 +35,7 @@ from clutt3r_core.update.state import load_pose_traces, state_dirs
 
 from clutt3r_viewer.data import label_colors
 from clutt3r_viewer.events import PoseIterations, register_event_source
-from clutt3r_viewer.layers import GHOST_WHITE, register_color_layer
+from clutt3r_viewer.layers import GHOST_WHITE, ghost, register_color_layer
 from clutt3r_viewer.loading import register_update_loader
 
 __all__ = ["load_update_frames", "update_pose_events", "update_motions", "updated_scene", "updated_labels",
@@ -309,11 +309,7 @@ class UpdateSceneLayer:
         if not 0 <= state.update < len(inp.data.updates):
             return label_colors(inp.instance[inp.idx])  # -1 = the initial segmentation
         inst, gone = updated_labels(inp.data, state.update, inp.idx, state.update_after)
-        col = label_colors(inst)
-        if gone.any():
-            own = label_colors(np.asarray(inp.data.seg.instance)[inp.idx][gone]).astype(np.float32)
-            col[gone] = np.round((1 - GHOST_WHITE) * own + GHOST_WHITE * 255).astype(np.uint8)
-        return col
+        return ghost(label_colors(inst), gone, np.asarray(inp.data.seg.instance)[inp.idx])
 
 
 register_update_loader(load_update_frames)

@@ -176,7 +176,7 @@ def test_the_edit_tab_shows_the_run_before_it_picks():
     from clutt3r_viewer.panels.edit import EditPanel
 
     calls = []
-    s = SimpleNamespace(scene_step=lambda: 1, set_scene=lambda u: calls.append(("scene", u)),
+    s = SimpleNamespace(scene_step=lambda: 1, set_scene=lambda u, update_colours: calls.append(("scene", u)),
                         notify=lambda title, body: calls.append(("notify", body)))
     p = EditPanel.__new__(EditPanel)
     p.click_selects = SimpleNamespace(value=True)
@@ -217,3 +217,13 @@ def test_the_rerun_export_logs_the_scene_after_each_update(chain, tiny_seg):
             np.testing.assert_allclose(xyz[-extra:] - pts, [[shift, 0, 0]] * extra, atol=1e-5)
             r, g, b = (int(c) for c in PALETTE[k % len(PALETTE)])
             assert np.all(cols[-extra:] == (r << 24) | (g << 16) | (b << 8) | 255)
+
+
+def test_only_a_few_scenes_are_cached(chain, tiny_seg):
+    from clutt3r_viewer.scene_step import _CACHED_SCENES, shown_scene
+
+    d, _ = chain
+    for n in range(100, 100 + 2 * _CACHED_SCENES):  # one level of detail each
+        shown_scene(d, 1 + n % 3, np.arange(n))
+    cached = [k for k in d._cache if isinstance(k, tuple) and k[0] == "shown"]
+    assert len(cached) == _CACHED_SCENES and ("shown", 1 + (99 + 2 * _CACHED_SCENES) % 3, 99 + 2 * _CACHED_SCENES) in cached
