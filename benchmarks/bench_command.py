@@ -123,6 +123,30 @@ cli._load = _tolerant
 cli.main(sys.argv[1:])
 """
 
+# the whole command with the core's CPU taken out: process CPU minus what the process spent
+# inside pipeline.segment (the other threads are idle then: the loading and the preparing
+# thread have finished, the drawing has not begun). The core's CPU is most of the whole and
+# its run-to-run spread on a loaded machine is larger than what the command around it costs,
+# so this is the number that shows a change outside the core. pipeline is imported before
+# main() to wrap it (the command would import it a little later: the same modules, the same CPU).
+_OUTSIDE_HARNESS = """
+import sys, time
+import clutt3r_core.pipeline as pl
+_seg, inside = pl.segment, [0.0]
+def _timed(*a, **k):
+    c = time.process_time()
+    try:
+        return _seg(*a, **k)
+    finally:
+        inside[0] += time.process_time() - c
+pl.segment = _timed
+import clutt3r_core.cli as cli
+try:
+    cli.main(sys.argv[1:])
+finally:
+    sys.stdout.write("OUTSIDE=%.4f\\n" % (time.process_time() - inside[0]))
+"""
+
 _CORE_HARNESS = """
 import json, sys, time
 from clutt3r_core.io import load_scene
@@ -259,6 +283,8 @@ def main() -> None:
     ap.add_argument("--scenes", nargs="*", default=["hard:0"], help="generated scenes, PRESET:SEED")
     ap.add_argument("--samples", nargs="*", default=["sample_seq4"])
     ap.add_argument("--no-core", action="store_true", help="whole processes only")
+    ap.add_argument("--outside", action="store_true",
+                    help="also: the whole command's CPU outside pipeline.segment (--runs more processes per tree)")
     ap.add_argument("--out", type=Path, default=None, help="JSON file of the raw numbers")
     args = ap.parse_args()
     args.work.mkdir(parents=True, exist_ok=True)
@@ -286,6 +312,20 @@ def main() -> None:
                 row["whole"][t].append({k: r[k] for k in ("wall", "cpu", "rss_mib")})
                 print(f"{label} {t} run {i}: {r['wall']:.2f} s wall, {r['cpu']:.2f} s CPU, {r['rss_mib']:.0f} MiB",
                       file=sys.stderr)
+        if args.outside:
+            row["outside"] = {t: [] for t in trees}
+            for i in range(args.runs):
+                for t, tree in trees.items():
+                    run_dir = args.work / "runs" / f"{folder.name}_{t}_outside"
+                    shutil.rmtree(run_dir, ignore_errors=True)
+                    r = _run_child([py, "-c", _OUTSIDE_HARNESS, "segment", str(folder), "--out", str(run_dir)], tree,
+                                   _env(tree))
+                    line = [x for x in r["output"].splitlines() if x.startswith("OUTSIDE=")]
+                    if r["rc"] != 0 or not line:
+                        raise SystemExit(f"{t} failed on {folder}:\n{r['output'][-3000:]}")
+                    row["outside"][t].append(float(line[-1][8:]))
+                    print(f"{label} {t} outside run {i}: {row['outside'][t][-1]:.3f} s CPU outside the core",
+                          file=sys.stderr)
         if len(trees) == 2:
             row["same_outputs"] = _same_outputs(*(args.work / "runs" / f"{folder.name}_{t}" for t in trees))
         if not args.no_core:
@@ -346,6 +386,14 @@ def _print_table(results: list[dict], trees: list[str]) -> None:
                 r = [c[what] / b[what] for b, c in zip(w["base"], w["current"])]
                 print(f"| {row['scene']} | whole command, {what}: median of the paired current / base | | | "
                       f"{med(r):.2f} (runs {min(r):.2f}-{max(r):.2f}) | |")
+        if row.get("outside"):
+            o = row["outside"]
+            line(row["scene"], "whole command, CPU s outside the core (median)", {t: med(o[t]) for t in trees},
+                 "{:.3f}", None)
+            if has_base:
+                r = [c / b for b, c in zip(o["base"], o["current"])]
+                print(f"| {row['scene']} | whole command, CPU outside the core: median of the paired current / base"
+                      f" | | | {med(r):.2f} (runs {min(r):.2f}-{max(r):.2f}) | |")
         if row["core"]:
             c = row["core"]
             line(row["scene"], "core, first call wall s (median)", {t: med(x[0] for x in c[t]["first"]) for t in trees},
