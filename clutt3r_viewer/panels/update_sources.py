@@ -134,6 +134,14 @@ class UpdatePoseIterations(PoseIterations):
     added_until: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     step_update: np.ndarray = field(default_factory=lambda: np.zeros(1, np.int64))
 
+    frames: tuple[int, ...] = ()
+    """The frame of every update of the chain (``data.updates`` order), for the step's text."""
+
+    def text(self, n: int) -> str:
+        j = int(self.step_update[self._it(n)])
+        where = f"update {j + 1} of {len(self.frames)} (frame {self.frames[j]}): " if j < len(self.frames) else ""
+        return where + super().text(n)
+
     def added(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """(points (A', 3) float32 world metres, instance (A',) int32, colours (A', 3) uint8) of the
         added instances in step n's scene, or None when there are none."""
@@ -208,7 +216,8 @@ def update_pose_events(data) -> PoseIterations | None:
         instance=np.concatenate(a_inst), poses=np.stack(poses), residual=np.stack(resid), points0=np.concatenate(pts),
         name="scene updates: pose iterations", context_rgb=np.concatenate(cols), n_run=len(seg.points),
         added_from=cat(a_from, np.int64), added_until=cat(a_until, np.int64),
-        step_update=np.asarray(step_update, np.int64), _added_id=cat(a_id, np.int32))
+        step_update=np.asarray(step_update, np.int64), _added_id=cat(a_id, np.int32),
+        frames=tuple(int(u.frame) for u in data.updates))
 
 
 def update_motions(updates, n_instances: int) -> np.ndarray:

@@ -78,6 +78,8 @@ def test_the_pose_replay_carries_the_added_instances(chain, tiny_seg):
     d, k = chain
     src = next(s for s in event_sources(d) if s.name == "scene updates: pose iterations")
     assert src.num_events == sum(N_ITER)
+    assert src.text(0).startswith("update 1 of 3 (frame 8): ") and src.text(src.num_events).startswith(
+        f"update 2 of 3 (frame 9): **iteration {src.num_events}/{src.num_events}**")
     pts = new_points(tiny_seg)
     for n in range(N_ITER[0] + 1):  # update 1's iterations: the scene before it has no added instance
         assert src.added(n) is None
