@@ -27,21 +27,28 @@ Runs after the association (associate.py) when the post-interaction view has dep
 4. Moved instances still without a fit are registered to the unexplained depth regions
    (``search_unexplained``, ``_search_regions``), then to pairs of unassigned masks that an
    occluder split (``search_mask_pairs``, ``_search_mask_pairs``), with the same tests.
+5. Every fit also needs evidence that the object is there (``_Evidence``, session 7): a target
+   on the support plane must look like the object, not the table (``fit_plane_colour``); a
+   mask owned by an in-place instance, or a region continuing one, must look more like the
+   fitted instance than like it (``fit_owner_appearance``). Moved instances still without a fit
+   that touch a fitted one share its motion when the free-space test agrees (``carry_contact``:
+   segmentation fragments of one object); the others are removed.
 """
 
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from functools import cache
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from clutt3r_core.scene import View
 from clutt3r_core.update.associate import Association, project_depth
-from clutt3r_core.update.depth import (PlaceCheck, Registration, _consistency, explained_pixels, mask_points,
-                                       place_check, prepare_model, register, start_rotations, support_plane,
-                                       unexplained_regions)
+from clutt3r_core.update.depth import (PlaceCheck, Registration, _consistency, _on_or_in_front, explained_pixels,
+                                       mask_points, place_check, prepare_model, register, start_rotations,
+                                       support_plane, unexplained_regions)
 from clutt3r_core.update.depth_refine import flip_check, refined_registration
 from clutt3r_core.update.project import mask_iou, silhouette
 from clutt3r_core.update.types import LOSS_NAMES, PoseResult, PoseTrace, UpdateConfig
@@ -69,6 +76,9 @@ class Fit:
     pair: tuple[int, ...] = ()
     """Indices of the two mask candidates whose union is ``region`` (``ChangeConfig.search_mask_pairs``;
     ``mask_index`` is -1 then): the masks this fit takes, so neither is reported new."""
+    carried_by: int = -1
+    """The fitted instance whose motion this one shares (``ChangeConfig.carry_contact``: a
+    fragment of the same object), its target and registration; -1: fitted itself."""
 
     def target(self, masks) -> np.ndarray:
         """(H, W) bool: the mask or region the instance was registered to."""
@@ -91,6 +101,9 @@ class DepthChanges:
             without one are removed; hidden ones without one are occluded).
         explained: (H, W) bool pixels showing in-place instances.
         registrations: number of registrations run (cost).
+        refused: id -> why a fit that passed the ``accept_*`` tests was refused for lack of
+            evidence that the object is there ("plane-colour": ``ChangeConfig.fit_plane_colour``,
+            "owner-appearance": ``ChangeConfig.fit_owner_appearance``), the last one refused.
     """
 
     place: PlaceCheck
@@ -99,16 +112,19 @@ class DepthChanges:
     fits: dict = field(default_factory=dict)
     explained: np.ndarray | None = None
     registrations: int = 0
+    refused: dict = field(default_factory=dict)
 
 
 def depth_changes(state, view: View, config: UpdateConfig, assoc: Association, status: dict,
-                  unsure: set | frozenset = frozenset(), plane=None) -> DepthChanges:
+                  unsure: set | frozenset = frozenset(), plane=None, embed=None) -> DepthChanges:
     """Judge the instances of ``state`` against ``view.depth`` (module docstring). ``unsure``:
     ids the paper's rules would not call static (unmatched, or IoU < tau_IoU); those whose old
     place the depth cannot judge (hidden) are registered too, on the masks the moved ones left.
     ``plane``: a callable returning the state's support plane (``depth.support_plane`` of its
     background and object points; update.py passes the one it caches for its own tests), None:
-    fitted here when the region search needs it."""
+    fitted here when the region search needs it. ``embed``: masks (n, H, W) bool -> (n, D)
+    unit embeddings of the association's embedder (``ChangeConfig.fit_owner_appearance`` on
+    targets without a mask; None: that test is skipped)."""
     cc, ac = config.change, config.association
     cam, depth, voxel = view.camera, view.depth, state.voxel_size
     ids = state.instance_ids
@@ -159,9 +175,14 @@ def depth_changes(state, view: View, config: UpdateConfig, assoc: Association, s
         if len(pts) < 30:
             continue
         cands.append((mi, pts, float(np.linalg.norm(np.ptp(pts, axis=0))), rest))
+    cand_pts = {c[0]: c[1] for c in cands}
     starts = start_rotations(config.pose.registration_yaw_step_deg)
     found, n_reg = _register_all(state, view, config, sorted(moved | hidden), cands, starts, occ,
                                  lambda k: cc.accept_iou if k in moved else cc.accept_iou_hidden, moved)
+    refused: dict = {}
+    support = cache(lambda: plane() if plane is not None else support_plane(
+        state.points[state.instance < 0], state.points[state.instance >= 0], cc.in_place_tol))
+    evidence = _Evidence(state, view, config, assoc, in_place, support, refused, embed)
     taken: list[np.ndarray] = []  # moved points of the accepted fits (ChangeConfig.max_fit_overlap)
     in_place_tree = cKDTree(state.points[np.isin(state.instance, stay)]) if len(stay) else None
 
@@ -179,21 +200,140 @@ def depth_changes(state, view: View, config: UpdateConfig, assoc: Association, s
     used_m = _take_fits(state, found, lambda f: (f[1] not in moved, -f[0], f[1], f[2]), lambda mi: {mi},
                         lambda mi, reg, iou: Fit(mi, reg, iou), fits, taken, overlap, cc.max_fit_overlap,
                         lambda k, q: (k not in moved and in_place_tree is not None
-                                      and overlap(q, [], in_place_tree) > cc.max_fit_overlap))
+                                      and overlap(q, [], in_place_tree) > cc.max_fit_overlap),
+                        lambda k, ti, reg: evidence(k, reg, cand_pts[ti], ti))
     left = sorted(k for k in moved if k not in fits)
     if cc.search_unexplained and left:
-        support = plane() if plane is not None else support_plane(
-            state.points[state.instance < 0], state.points[state.instance >= 0], cc.in_place_tol)
-        n_reg += _search_regions(state, view, config, left, moved, fits, taken, occ, starts, overlap, support)
+        n_reg += _search_regions(state, view, config, left, moved, fits, taken, occ, starts, overlap, support(),
+                                 evidence)
         left = [k for k in left if k not in fits]
     if cc.search_mask_pairs and left:  # last: each pair costs a registration per instance left
         n_reg += _search_mask_pairs(state, view, config, left, [c for c in cands if c[0] not in used_m], fits, taken,
-                                    occ, starts, overlap)
-    return DepthChanges(pc, frozenset(in_place), frozenset(moved), fits, explained, n_reg)
+                                    occ, starts, overlap, evidence)
+    if cc.carry_contact < 1.0 and left:
+        _carry_fragments(state, view, config, [k for k in left if k not in fits], fits)
+    for k in fits:  # refused on one target, accepted on another
+        refused.pop(k, None)
+    return DepthChanges(pc, frozenset(in_place), frozenset(moved), fits, explained, n_reg, refused)
+
+
+def _carry_fragments(state, view: View, config: UpdateConfig, left: list[int], fits: dict) -> None:
+    """``ChangeConfig.carry_contact``: a moved instance no target fitted, at least that fraction
+    of whose stored points lie within ``in_place_tol`` of a fitted instance's stored points (a
+    segmentation fragment of the same object), moved by that fit's motion: when at least
+    ``min_place_points`` of its moved points the camera would see lie on the observed surface,
+    and ``accept_consistency`` of those seen (the free-space test), it shares that fit (added to
+    ``fits`` with ``carried_by``); otherwise it stays unfitted (removed)."""
+    cc = config.change
+    trees = {}
+    for k in left:
+        pk = state.points[state.instance == k].astype(np.float64)
+        best = None
+        for j, f in list(fits.items()):
+            if f.carried_by >= 0:
+                continue
+            if j not in trees:
+                trees[j] = cKDTree(state.points[state.instance == j])
+            contact = float(np.mean(trees[j].query(pk, distance_upper_bound=cc.in_place_tol)[0] <= cc.in_place_tol))
+            if contact >= cc.carry_contact and (best is None or contact > best[0]):
+                best = (contact, j, f)
+        if best is None:
+            continue
+        _, j, f = best
+        T = f.registration.T_world
+        _, on, front = _on_or_in_front(pk @ T[:3, :3].T + T[:3, 3], view.camera, view.depth, cc.in_place_tol)
+        n_on, n = int(on.sum()), int(on.sum() + front.sum())
+        if n_on >= cc.min_place_points and n_on >= cc.accept_consistency * n:
+            fits[k] = Fit(f.mask_index, f.registration, f.iou, f.region, f.pair, carried_by=j)
+
+
+class _Evidence:
+    """The evidence a fit that passed the ``accept_*`` tests still needs (ours, session 7):
+    ``__call__(k, registration, target points, mask index or -1, target pixels)`` is False
+    when the fit is refused (the reason goes into ``refused[k]``).
+
+    - ``ChangeConfig.fit_plane_colour``: a target standing on the support plane (its 95th
+      height percentile under ``in_place_tol``) must look like the instance more than like the
+      support (the depth cannot tell a flat object from the table).
+    - ``ChangeConfig.fit_owner_appearance``: a mask the association gave to an in-place
+      instance must look more like the fitted instance than like that one (S_semantic); a
+      target without a mask (an unexplained region, a pair of masks) must look more like the
+      fitted instance than like the in-place instance nearest to its depth points (the one
+      whose surface it would continue), by ``embed`` (the association's embedder), when given."""
+
+    def __init__(self, state, view: View, config: UpdateConfig, assoc: Association, in_place: set, support,
+                 refused: dict, embed=None) -> None:
+        self.state, self.view, self.cc, self.support, self.refused = state, view, config.change, support, refused
+        self.in_place = in_place
+        self.col = {int(k): i for i, k in enumerate(assoc.instance_ids)}
+        self.owner = {int(mi): int(k) for k, mi in zip(assoc.instance_ids, assoc.mask_index) if mi >= 0}
+        self.s_sem = assoc.s_semantic
+        self.embed = embed
+        ip = np.isin(state.instance, np.array(sorted(in_place), np.int32))
+        self._ip = cache(lambda: (cKDTree(state.points[ip]), state.instance[ip]) if ip.any() else None)
+        self._bg = cache(lambda: (state.points[state.instance < 0].astype(np.float64),
+                                  state.colors[state.instance < 0].astype(np.float64)))
+
+    def __call__(self, k: int, reg: Registration, pts: np.ndarray, mask_index: int,
+                 pixels: np.ndarray | None = None) -> bool:
+        cc = self.cc
+        if cc.fit_owner_appearance and mask_index < 0 and pixels is not None and not self._neighbour_ok(k, pts, pixels):
+            self.refused[k] = "neighbour-appearance"
+            return False
+        if cc.fit_owner_appearance and mask_index >= 0 and not self._owner_ok(k, mask_index):
+            self.refused[k] = "owner-appearance"
+            return False
+        if cc.fit_plane_colour and not self._plane_colour_ok(k, reg, pts):
+            self.refused[k] = "plane-colour"
+            return False
+        return True
+
+    def _neighbour_ok(self, k: int, pts: np.ndarray, pixels: np.ndarray) -> bool:
+        near = self._ip()
+        if self.embed is None or near is None or not len(pts):
+            return True
+        tree, lab = near
+        j = int(np.bincount(lab[tree.query(pts)[1]] - lab.min()).argmax() + lab.min())
+        e = np.asarray(self.embed(pixels[None]), np.float32)[0]
+        E = np.asarray(self.state.embeddings, np.float32)
+        return float(e @ E[self.col[k]]) >= float(e @ E[self.col[j]])
+
+    def _owner_ok(self, k: int, mi: int) -> bool:
+        j = self.owner.get(mi)
+        if j is None or j == k or j not in self.in_place:
+            return True
+        a, b = float(self.s_sem[mi, self.col[k]]), float(self.s_sem[mi, self.col[j]])
+        # S_semantic is computed for the masks that reached the semantic stage only (NaN else)
+        return not (np.isfinite(a) and np.isfinite(b)) or a >= b
+
+    def _plane_colour_ok(self, k: int, reg: Registration, pts: np.ndarray) -> bool:
+        view, cc = self.view, self.cc
+        plane = self.support()
+        if plane is None or view.rgb is None or not len(pts):
+            return True
+        if np.percentile(pts @ plane[:3] + plane[3], 95) >= cc.in_place_tol:
+            return True  # stands above the support: the depth tells object from table
+        sel = self.state.instance == k
+        T = reg.T_world
+        uv, on, _ = _on_or_in_front(self.state.points[sel].astype(np.float64) @ T[:3, :3].T + T[:3, 3],
+                                    view.camera, view.depth, cc.in_place_tol)
+        if not on.any():
+            return False
+        H, W = view.depth.shape
+        u = np.clip(np.round(uv[on, 0]).astype(np.int64), 0, W - 1)
+        v = np.clip(np.round(uv[on, 1]).astype(np.int64), 0, H - 1)
+        img = view.rgb[v, u].astype(np.float64)
+        bg, bg_col = self._bg()
+        if not len(bg):
+            return True
+        near = np.linalg.norm(bg - pts.mean(axis=0), axis=1) <= cc.support_colour_radius
+        table = np.median(bg_col[near] if near.any() else bg_col, axis=0)
+        obj = self.state.colors[sel][on].astype(np.float64)
+        return float(np.abs(img - obj).mean()) < float(np.abs(img - table).mean())
 
 
 def _search_mask_pairs(state, view: View, config: UpdateConfig, left: list[int], cands: list, fits: dict,
-                       taken: list[np.ndarray], occ, starts: np.ndarray, overlap) -> int:
+                       taken: list[np.ndarray], occ, starts: np.ndarray, overlap, evidence=None) -> int:
     """``ChangeConfig.search_mask_pairs``: register the moved instances that no single mask
     fitted to the union of two unassigned mask candidates (``cands``: (mask index, depth
     points, extent, unexplained pixels)) that something nearer than both separates in the
@@ -221,17 +361,19 @@ def _search_mask_pairs(state, view: View, config: UpdateConfig, left: list[int],
     found, n_reg = _register_all(state, view, config, left, targets, starts, occ, lambda k: cc.accept_iou_region)
     _take_fits(state, found, lambda f: (-f[0], f[1], f[2]), lambda ti: set(pairs[ti]),
                lambda ti, reg, iou: Fit(-1, reg, iou, targets[ti][3], pairs[ti]), fits, taken, overlap,
-               cc.max_fit_overlap)
+               cc.max_fit_overlap, evidence=None if evidence is None else lambda k, ti, reg: evidence(
+                   k, reg, targets[ti][1], -1, targets[ti][3]))
     return n_reg
 
 
 def _take_fits(state, found: list, key, takes, make_fit, fits: dict, taken: list[np.ndarray], overlap,
-               max_overlap: float, reject=None) -> set:
+               max_overlap: float, reject=None, evidence=None) -> set:
     """Accept the registrations ``found`` ([(rank, k, target index, registration, IoU)], from
     ``_register_all``) greedily in ``key`` order: one fit per instance, none on a mask or region
     an accepted fit took (``takes(target index)``: the set of ids it takes), none whose moved
     points lie on an accepted fit's (``taken``, ``ChangeConfig.max_fit_overlap``) or that
-    ``reject(k, moved points)``. Accepted fits go into ``fits`` (``make_fit(target index,
+    ``reject(k, moved points)``, nor one that ``evidence(k, target index, registration)`` (the
+    depth_changes' ``_Evidence``) refuses. Accepted fits go into ``fits`` (``make_fit(target index,
     registration, IoU)``) and their moved points into ``taken``. Returns the ids taken."""
     used_k, used = set(), set()
     for _, k, ti, reg, iou in sorted(found, key=key):
@@ -242,6 +384,8 @@ def _take_fits(state, found: list, key, takes, make_fit, fits: dict, taken: list
         q = state.points[state.instance == k].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
         if overlap(q, taken) > max_overlap or (reject is not None and reject(k, q)):
             continue  # that surface belongs to another object
+        if evidence is not None and not evidence(k, ti, reg):
+            continue
         used_k.add(k)
         used |= t
         taken.append(q)
@@ -276,7 +420,8 @@ def _occluded_between(ma: np.ndarray, mb: np.ndarray, depth: np.ndarray, pa: np.
 
 
 def _search_regions(state, view: View, config: UpdateConfig, left: list[int], moved: set, fits: dict,
-                    taken: list[np.ndarray], occ, starts: np.ndarray, overlap, plane: np.ndarray | None) -> int:
+                    taken: list[np.ndarray], occ, starts: np.ndarray, overlap, plane: np.ndarray | None,
+                    evidence=None) -> int:
     """``ChangeConfig.search_unexplained``: register the moved instances that no mask fitted
     to the regions of new depth that nothing stored explains (``depth.unexplained_regions``:
     not an unmoved instance, not the background, not an accepted fit), with the same
@@ -313,7 +458,9 @@ def _search_regions(state, view: View, config: UpdateConfig, left: list[int], mo
                                  [(ri, pts, ext, m) for ri, (m, pts, ext) in enumerate(targets)], starts, occ,
                                  lambda k: cc.accept_iou_region, area_bound=True)
     _take_fits(state, found, lambda f: (-f[0], f[1], f[2]), lambda ri: {ri},
-               lambda ri, reg, iou: Fit(-1, reg, iou, targets[ri][0]), fits, taken, overlap, cc.max_fit_overlap)
+               lambda ri, reg, iou: Fit(-1, reg, iou, targets[ri][0]), fits, taken, overlap, cc.max_fit_overlap,
+               evidence=None if evidence is None else lambda k, ri, reg: evidence(k, reg, targets[ri][1], -1,
+                                                                                  targets[ri][0]))
     return n_reg
 
 

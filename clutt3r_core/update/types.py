@@ -503,6 +503,37 @@ class ChangeConfig:
     """Ours: ... and at least this many voxels (``SceneState.voxel_size``) once downsampled: the
     same floor as ``AssociationConfig.min_points`` (below it an instance is a fragment that the
     update never judges). Measured in docs/update.md (session 6)."""
+    fit_plane_colour: bool = True
+    """Ours (session 7): a fit whose target stands on the support plane (95 % of the target's
+    unexplained depth points within ``in_place_tol`` of it: the depth cannot tell an object
+    from the table there, so any flat object fits it at fitness and consistency 1.0) is
+    accepted only when the image there agrees better with the instance's stored colours than
+    with the support's (median colour of the stored background points within
+    ``support_colour_radius``). Measured on every accepted fit of 300/500/700/900 and
+    1100-1900 with depth (docs/update.md, "Session 7: removed objects"): every right fit's
+    target stands 1.5-19 cm high (95th percentile); the two wrong ones (intermediate_1303's
+    removed object, hard_1701's fragment) stand 0.02-0.03 cm high on table masks, colour
+    difference 0.40 / 0.20 to the object, 0.03 to the table."""
+    support_colour_radius: float = 0.10
+    """Ours, metres: the stored background points within this of the target give the support's
+    colour (``fit_plane_colour``); all of them when none is that close."""
+    fit_owner_appearance: bool = True
+    """Ours (session 7): a fit to a mask that the association gave to an instance the depth
+    found in place is rejected when the mask's appearance (S_semantic) is closer to that
+    instance than to the fitted one (the mask is the static object's; its stored points only
+    cover part of it). Measured: intermediate_1901's removed flat object fitted onto a static
+    object's mask (S_semantic 0.78 vs the owner's 0.98); the one right fit to a mask owned by
+    an in-place instance on 300-1900 (hard_700) has 0.98 vs 0.73."""
+    carry_contact: float = 0.25
+    """Ours (session 7): a moved instance that no target fits shares the motion of a fitted
+    instance whose stored points touch it (this fraction of its points within ``in_place_tol``
+    of that instance's: a segmentation fragment of the same object), when its points so moved
+    are seen on the observed surface (``min_place_points``, ``accept_consistency``: the
+    free-space test); 1.0 = off. Measured on the moved-unfitted instances touching a fitted one
+    (docs/update.md, "Session 7: removed objects"): on 300/500/700/900, 29 removed objects touch
+    the displaced one at 0.00-0.14 (carried, their points agree at 0.00-1.00: the free-space test
+    alone does not separate them), the displaced object's fragment on easy_302 at 0.85 (agrees
+    at 0.84). 0.25: above the removed objects' 0.14 with a margin."""
     splat_scale: float = 1.0
     """Ours: a point is splatted as a square of half-size ``splat_scale * voxel * f / z / 2``
     pixels, voxel = the cloud's voxel size (5 mm, Sec. IV), so neighbouring points close the
@@ -513,7 +544,7 @@ class ChangeConfig:
         # everything; fail at construction naming the field instead.
         fractions = ("tau_iou", "min_fit_iou", "in_place_fraction", "accept_fitness", "accept_consistency",
                      "accept_iou", "accept_iou_hidden", "accept_iou_region", "min_rest_fraction", "fit_colour_weight",
-                     "max_fit_overlap", "photo_context_share", "photo_min_informative", "photo_in_place_fraction",
+                     "carry_contact", "max_fit_overlap", "photo_context_share", "photo_min_informative", "photo_in_place_fraction",
                      "hidden_by_moved_fraction", "photo_gone_fraction", "new_min_unexplained")
         for name in fractions:
             v = getattr(self, name)
@@ -522,7 +553,7 @@ class ChangeConfig:
         for name in ("min_translation", "min_rotation_deg", "in_place_tol", "min_place_points", "photo_tol_min",
                      "photo_tol_sigma", "photo_search_px", "photo_context_radius", "photo_min_points",
                      "photo_fragment_points", "region_min_height", "region_link", "region_min_pixels",
-                     "region_pair_gap", "region_max_targets", "new_min_points",
+                     "support_colour_radius", "region_pair_gap", "region_max_targets", "new_min_points",
                      "registration_keep_consistent", "registration_alternatives"):
             v = getattr(self, name)
             if v < 0:

@@ -230,7 +230,8 @@ def _update_scene(state: SceneState, view: View, config: UpdateConfig, *, optimi
     dc = None
     if config.change.use_depth and view.depth is not None:
         unsure = {int(k) for k in ids if int(k) not in iou or iou[int(k)] < config.change.tau_iou}
-        dc = depth_changes(state, view, config, assoc, status, unsure, plane)
+        dc = depth_changes(state, view, config, assoc, status, unsure, plane,
+                           embed=lambda m: embedder.embed_masks(view.rgb, m))
         if details is not None:
             details.depth = dc
         hidden_flagged = set(displaced) - dc.in_place - dc.moved - set(dc.fits)
@@ -263,7 +264,8 @@ def _update_scene(state: SceneState, view: View, config: UpdateConfig, *, optimi
             sel = state.instance == k
             m_k = fit.target(masks)
             fit_mid = int(masks.ids[fit.mask_index]) if fit.mask_index >= 0 else -1
-            fit_how = "depth-registration" if fit.mask_index >= 0 else "depth-region"
+            fit_how = ("depth-carried" if fit.carried_by >= 0 else "depth-registration" if fit.mask_index >= 0
+                       else "depth-region")
             ib = mask_iou(proj.label == k, m_k)  # the paper's IoU before, for the record
             T, res = fit.registration.T_world, registration_result(fit.registration, state.points[sel], cam, voxel,
                                                                    occ_depth, m_k, ib)
