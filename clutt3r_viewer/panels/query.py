@@ -73,7 +73,8 @@ def _in_scene(s: "Session", scores: np.ndarray, text_embedding: np.ndarray | Non
             out[k] = float(e @ t / max(float(np.linalg.norm(t)), 1e-12))
         else:
             unscored.append(k)
-    note = [f"\n_scene after update {step}_" + (f"; removed, not ranked: {', '.join(f'I{k}' for k in gone)}" if gone else "")
+    removed = f"; removed, not ranked: {', '.join(f'I{k}' for k in gone)}" if gone else ""
+    note = [f"\n_scene after update {step}_" + removed
             + (f"; added {', '.join(f'I{k}' for k in sorted(sc.added_in))}" if sc.added_in else "")]
     if unscored:
         note.append(f"_not ranked: {', '.join(f'I{k}' for k in unscored)} (added by an update; this backend describes "

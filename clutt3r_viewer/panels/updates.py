@@ -25,7 +25,8 @@ if TYPE_CHECKING:
 __all__ = ["UpdatesPanel", "timeline_markdown"]
 
 INITIAL = "_-1 = the initial segmentation_"
-AFTER = "_the scene **after** this update (in every tab): displaced instances moved to their new poses, removed ones pale, added ones drawn_"
+AFTER = ("_the scene **after** this update (in every tab): displaced instances moved to their new poses, "
+         "removed ones pale, added ones drawn_")
 BEFORE = "_the scene **before** this update (after the previous one)_"
 
 

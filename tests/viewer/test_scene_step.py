@@ -31,7 +31,8 @@ def test_the_scene_after_each_update(chain, tiny_seg):
 
     d, k = chain
     assert k == tiny_seg.num_instances  # a fresh id, after the run's
-    assert [scene_step(u, a, 3) for u, a in ((-1, True), (0, False), (0, True), (2, False), (2, True))] == [0, 0, 1, 2, 3]
+    cases = ((-1, True), (0, False), (0, True), (2, False), (2, True))
+    assert [scene_step(u, a, 3) for u, a in cases] == [0, 0, 1, 2, 3]
     idx = np.arange(len(tiny_seg.points))
     pts = new_points(tiny_seg)
     s0 = shown_scene(d, 0, idx)
@@ -228,4 +229,5 @@ def test_only_a_few_scenes_are_cached(chain, tiny_seg):
     for n in range(100, 100 + 2 * _CACHED_SCENES):  # one level of detail each
         shown_scene(d, 1 + n % 3, np.arange(n))
     cached = [k for k in d._cache if isinstance(k, tuple) and k[0] == "shown"]
-    assert len(cached) == _CACHED_SCENES and ("shown", 1 + (99 + 2 * _CACHED_SCENES) % 3, 99 + 2 * _CACHED_SCENES) in cached
+    last = 99 + 2 * _CACHED_SCENES
+    assert len(cached) == _CACHED_SCENES and ("shown", 1 + last % 3, last) in cached
