@@ -49,12 +49,14 @@ def language_backend_name() -> str | None:
         return None
 
 
-def _in_scene(s: "Session", scores: np.ndarray, text_embedding: np.ndarray | None) -> tuple[np.ndarray, list[str]]:
-    """The run's per-instance ``scores`` for the scene the tab shows (after its updates): one
-    score per instance id of the chain, NaN = not ranked (removed by then; added but without an
-    embedding in the text's space), and the lines that say so. An added instance is scored by
-    its mask's embedding (``NewInstance.embedding``, the state's embedder) when a text embedding
-    in that space is given (the run's own text embedder)."""
+def _in_scene(s: "Session", scores: np.ndarray, text_embedding: np.ndarray | None,
+              scored: frozenset[int] = frozenset()) -> tuple[np.ndarray, list[str]]:
+    """Per-instance ``scores`` (rows = instance ids) for the scene the tab shows (after its
+    updates): one score per instance id of the chain, NaN = not ranked (not in that scene:
+    removed by then or added later; added but not described), and the lines that say so. An added
+    instance keeps its row of ``scores`` when it is in ``scored`` (the language backend described
+    its mask), else it is scored by its mask's embedding (``NewInstance.embedding``, the state's
+    embedder) when a text embedding in that space is given (the run's own text embedder)."""
     step = s.scene_step()
     if step == 0:
         return scores, []
@@ -62,24 +64,75 @@ def _in_scene(s: "Session", scores: np.ndarray, text_embedding: np.ndarray | Non
     n = max(len(scores), int(sc.present.max(initial=-1)) + 1)
     out = np.full(n, np.nan, np.float32)
     out[: len(scores)] = scores
+    out[~np.isin(np.arange(n), sc.present)] = np.nan
     gone = [k for k in sc.removed if k < n]
-    out[gone] = np.nan
     emb = {a.instance: a.embedding for u in s.app.data.updates[:step] if u.result is not None for a in u.result.added}
     unscored = []
     for k in sorted(sc.added_in):
         e = emb.get(k)
+        if k in scored and k < len(scores):
+            continue
         if text_embedding is not None and e is not None and e.shape == np.shape(text_embedding) and np.any(e):
             t = np.asarray(text_embedding, np.float32)
             out[k] = float(e @ t / max(float(np.linalg.norm(t)), 1e-12))
         else:
+            out[k] = np.nan
             unscored.append(k)
     removed = f"; removed, not ranked: {', '.join(f'I{k}' for k in gone)}" if gone else ""
     note = [f"\n_scene after update {step}_" + removed
             + (f"; added {', '.join(f'I{k}' for k in sorted(sc.added_in))}" if sc.added_in else "")]
     if unscored:
-        note.append(f"_not ranked: {', '.join(f'I{k}' for k in unscored)} (added by an update; this backend describes "
-                    "the run's masks only)_")
+        note.append(f"_not ranked: {', '.join(f'I{k}' for k in unscored)} (added by an update; its mask in the "
+                    "post view could not be described: no scene folder, or no mask id)_")
     return out, note
+
+
+def added_instance_evidence(rq, data) -> tuple[object, frozenset[int]]:
+    """``rq.instances`` (the run's ``InstanceEvidence``) extended with one row per instance id
+    the updates of ``data`` added, each described by the backend from its mask in the post view
+    that added it (the scene folder's view of that frame, ``NewInstance.mask_id``), aggregated as
+    the core aggregates a run instance's masks (``aggregate_instances``, one mask); rows of ids
+    without a description are zeros. Returns (evidence, the ids described)."""
+    from types import SimpleNamespace as NS
+
+    from clutt3r_core.io import load_scene
+    from clutt3r_core.language.colors import color_shares
+    from clutt3r_core.query.evidence import InstanceEvidence, NodeEvidence, aggregate_instances
+
+    base = rq.instances
+    adds = [(u.frame, a) for u in data.updates if u.result is not None for a in u.result.added if a.mask_id >= 0]
+    if not adds or data.scene_root is None:
+        return base, frozenset()
+    scene = load_scene(data.scene_root)
+    n = max(base.num_instances, 1 + max(a.instance for _, a in adds))
+    out = [np.zeros((n, x.shape[1]), np.float32) for x in (base.grounding, base.colors, base.features)]
+    n_views = np.zeros(n, np.int32)
+    i0 = base.num_instances
+    for x, y in zip(out, (base.grounding, base.colors, base.features)):
+        x[:i0] = y
+    n_views[:i0] = base.n_views
+    done = set()
+    for frame in sorted({f for f, _ in adds}):
+        try:
+            v = scene.view_by_frame(int(frame))
+            these = [a for f, a in adds if f == frame]
+            masks = v.masks.stack([v.masks.index_of(a.mask_id) for a in these])
+        except (KeyError, ValueError, AttributeError):
+            continue  # the frame or its masks are not in the scene folder: left undescribed
+        g = rq.grounder.mask_evidence(v.rgb, masks)
+        m = len(these)
+        ev = NodeEvidence(np.arange(m), g.features, g.grounding, color_shares(v.rgb, masks),
+                          masks.reshape(m, -1).sum(axis=1).astype(np.float32),
+                          np.full(m, masks.shape[1] * masks.shape[2], np.float32), rq.evidence.backend,
+                          rq.evidence.version, rq.evidence.label_embeddings, rq.evidence.labels)
+        agg = aggregate_instances(NS(num_instances=m, instance_nodes=lambda i: (i,)), ev,
+                                  label_mode=rq.evidence.label_embeddings is not None)
+        for j, a in enumerate(these):
+            for x, y in zip(out, (agg.grounding, agg.colors, agg.features)):
+                x[a.instance] = y[j]
+            n_views[a.instance] = 1
+            done.add(a.instance)
+    return InstanceEvidence(out[0], out[1], out[2], n_views), frozenset(done)
 
 
 class QueryPanel(Panel):
@@ -126,10 +179,27 @@ class QueryPanel(Panel):
             s.app._run_query = rq
             return rq
 
+    def _added_query_object(self, s: "Session", rq):
+        """``rq`` with the instances the updates added described too (``added_instance_evidence``,
+        once per app), and the ids described."""
+        with _RQ_LOCK:
+            hit = getattr(s.app, "_run_query_added", None)
+            if hit is not None and hit[0] is rq:
+                return hit[1], hit[2]
+            from dataclasses import replace
+
+            ev, done = added_instance_evidence(rq, s.app.data)
+            out = (rq, replace(rq, instances=ev), done)
+            s.app._run_query_added = out
+            return out[1], out[2]
+
     def _language_scores(self, s: "Session", text: str):
         rq = self._run_query_object(s)
+        scored: frozenset[int] = frozenset()
+        if s.scene_step() > 0 and any(u.result is not None and u.result.added for u in s.app.data.updates):
+            rq, scored = self._added_query_object(s, rq)
         res = rq.query(text)
-        scores, note = _in_scene(s, res.scores.astype(np.float32), None)
+        scores, note = _in_scene(s, res.scores.astype(np.float32), None, scored)
         ranking = [k for k in res.ranking if np.isfinite(scores[k])]  # removed instances are not ranked
         target = res.target if res.target in ranking else (ranking[0] if ranking else None)
         lines = [f"**{text}** → I{target} "

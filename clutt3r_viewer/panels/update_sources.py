@@ -30,7 +30,7 @@ import numpy as np
 from clutt3r_core.errors import Clutt3rError
 from clutt3r_core.scene import Scene
 from clutt3r_core.update import InstanceUpdate, PoseResult, UpdateFrame, UpdateResult
-from clutt3r_core.update.types import NewInstance
+from clutt3r_core.update.types import NewInstance, NewMask
 from clutt3r_core.update.state import load_pose_traces, state_dirs
 
 from clutt3r_viewer.data import label_colors
@@ -63,9 +63,13 @@ def _result(folder: Path, doc: dict, hw: tuple[int, int]) -> UpdateResult:
             inst, pts, cols, ids, emb = z["instance"], z["points"], z["colors"], z["instance_ids"], z["embeddings"]
         # the embedding (its mask's, the state's embedder) lets a query in the run's space rank it
         e_of = lambda k: emb[int(np.searchsorted(ids, k))] if emb.shape[1] and k in ids else None  # noqa: E731
-        added = tuple(NewInstance(k, -1, pts[inst == k], cols[inst == k], e_of(k)) for k in new_ids
+        mask_of = {int(m["instance"]): int(m["mask"]) for m in doc.get("new_masks", [])
+                   if m.get("instance") is not None}  # the mask candidate each came from (the query describes it)
+        added = tuple(NewInstance(k, mask_of.get(k, -1), pts[inst == k], cols[inst == k], e_of(k)) for k in new_ids
                       if np.any(inst == k))
-    return UpdateResult(int(doc["frame"]), tuple(recs), (), np.zeros((len(recs), *hw), bool),
+    new_masks = tuple(NewMask(int(m["mask"]), int(m.get("area_px", 0)), -1 if m.get("instance") is None
+                              else int(m["instance"])) for m in doc.get("new_masks", []))
+    return UpdateResult(int(doc["frame"]), tuple(recs), new_masks, np.zeros((len(recs), *hw), bool),
                         np.full(hw, -1, np.int32), float(doc.get("time_s", 0.0)), added=added)
 
 

@@ -17,7 +17,7 @@ import numpy as np
 from clutt3r_core.update import InstanceUpdate, PoseResult, PoseTrace, UpdateResult
 from clutt3r_core.update.newobj import next_instance_id
 from clutt3r_core.update.state import apply_update, save_state, state_from_segmentation
-from clutt3r_core.update.types import NewInstance
+from clutt3r_core.update.types import NewInstance, NewMask
 
 SHIFT_0 = 0.05
 SHIFT_K = 0.03
@@ -33,8 +33,9 @@ def _moved(k: int, shift: float, n_iter: int) -> InstanceUpdate:
     return InstanceUpdate(k, "displaced", 0.1, 0.9, Ts[-1], pose=PoseResult(Ts[-1], 0.1, 0.9, trace, 1, 0.0))
 
 
-def _result(frame: int, recs: list, added=()) -> UpdateResult:
-    return UpdateResult(frame, tuple(recs), (), np.zeros((len(recs), 4, 4), bool), np.full((4, 4), -1, np.int32), 0.1,
+def _result(frame: int, recs: list, added=(), new_masks=()) -> UpdateResult:
+    return UpdateResult(frame, tuple(recs), tuple(new_masks), np.zeros((len(recs), 4, 4), bool),
+                        np.full((4, 4), -1, np.int32), 0.1,
                         added=tuple(added))
 
 
@@ -52,9 +53,11 @@ def new_points(seg) -> np.ndarray:
 NEW_RGB = (250, 40, 200)
 
 
-def build_chain(seg, run: Path, embedding: np.ndarray | None = None) -> int:
+def build_chain(seg, run: Path, embedding: np.ndarray | None = None, frame: int = 8, mask: int = 5) -> int:
     """Write the three updates under ``run/updates``; returns K, the added instance's id.
-    ``embedding``: the added instance's (its mask's) embedding, default a unit axis."""
+    ``embedding``: the added instance's (its mask's) embedding, default a unit axis; ``frame``
+    and ``mask``: update 1's frame and the added instance's mask candidate in it (default: a
+    frame the scene does not have)."""
     s0 = state_from_segmentation(seg, run=run)
     k = next_instance_id(s0)
     pts = new_points(seg)
@@ -66,10 +69,11 @@ def build_chain(seg, run: Path, embedding: np.ndarray | None = None) -> int:
                                                                             None if i == 2 else 0.9,
                                                                             None if i == 2 else 0.9, None)
             for i in s0.instance_ids]
-    r1 = _result(8, recs + [InstanceUpdate(k, "new", None, 0.9, None, 5, "new-depth")],
-                 [NewInstance(k, 5, pts, np.tile(np.array(NEW_RGB, np.uint8), (len(pts), 1)), emb)])
+    r1 = _result(frame, recs + [InstanceUpdate(k, "new", None, 0.9, None, mask, "new-depth")],
+                 [NewInstance(k, mask, pts, np.tile(np.array(NEW_RGB, np.uint8), (len(pts), 1)), emb)],
+                 (NewMask(mask, 100, k),))
     s1 = apply_update(s0, r1)
-    save_state(s1, run / "updates" / "01_frame_000008", r1)
+    save_state(s1, run / "updates" / f"01_frame_{frame:06d}", r1)
     r2 = _result(9, [InstanceUpdate(int(i), "static", 0.9, 0.9, None) for i in s1.instance_ids if i != k]
                  + [_moved(k, SHIFT_K, N_ITER[1])])
     s2 = apply_update(s1, r2)

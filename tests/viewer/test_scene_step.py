@@ -231,3 +231,48 @@ def test_only_a_few_scenes_are_cached(chain, tiny_seg):
     cached = [k for k in d._cache if isinstance(k, tuple) and k[0] == "shown"]
     last = 99 + 2 * _CACHED_SCENES
     assert len(cached) == _CACHED_SCENES and ("shown", 1 + last % 3, last) in cached
+
+
+def test_the_language_backend_describes_an_added_instance_from_its_mask(tiny_run_dir, tiny_seg, tiny_scene, tmp_path,
+                                                                       monkeypatch):
+    """An added instance whose mask is in the scene folder (its post view) is described by the
+    backend like a run instance with one mask: the reddest mask of a view, added, scores for "red"
+    within 0.1 of the run instance that mask belongs to (the fake backend grounds by red/green/blue
+    shares), far above its own "green" and "blue" scores."""
+    import threading
+
+    import clutt3r_core.query as cq
+    import clutt3r_viewer.panels.query as qp
+    import clutt3r_viewer.panels.update_sources  # noqa: F401
+    from clutt3r_core.language.colors import COLOR_WORDS, color_shares
+    from clutt3r_viewer.loading import load_viewer_data
+    from clutt3r_viewer.scene_step import shown_scene
+    from tests.core.query._fake import FakeGrounder
+
+    v = tiny_scene.initial_views[0]
+    red = color_shares(v.rgb, v.masks.stack())[:, COLOR_WORDS.index("red")]
+    mask = int(v.masks.ids[int(np.argmax(red))])
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run_dir, run)
+    k = build_chain(tiny_seg, run, frame=int(v.frame), mask=mask)
+    d = load_viewer_data(run)
+    assert d.updates[0].result.added[0].mask_id == mask and d.updates[0].result.new_masks[0].instance == k
+    monkeypatch.setattr(qp, "language_backend_name", lambda: "fake-ground")
+    monkeypatch.setattr(cq, "create_grounder", lambda name=None: FakeGrounder())
+    state = SimpleNamespace(query="", query_best=-1, query_scores=None, color_mode="instance")
+    s = SimpleNamespace(app=SimpleNamespace(text_embedder=None, data=d), lock=threading.Lock(), state=state,
+                        changed=lambda c: None, scene_step=lambda: 1,
+                        scene=lambda: shown_scene(d, 1, np.arange(len(d.seg.points))))
+    panel = qp.QueryPanel()
+    panel.result = SimpleNamespace(content="")
+    nodes = d.trace.nodes
+    owner = int(d.node_instance[np.flatnonzero((nodes.frame == v.frame) & (nodes.mask_id == mask))[0]])
+    got = {}
+    for text in ("red", "green", "blue"):
+        panel.run_query(s, f"the {text} thing")
+        got[text] = state.query_scores.copy()
+        assert np.isfinite(got[text][k]) and np.isnan(got[text][2])  # described; the removed one is not ranked
+        assert f"not ranked: I{k}" not in panel.result.content
+    # described like the run instance whose mask it is (the same object seen in one view, not four)
+    assert owner >= 0 and abs(got["red"][k] - got["red"][owner]) < 0.1
+    assert got["red"][k] > max(got["green"][k], got["blue"][k]) + 1.0  # its mask is the view's reddest
