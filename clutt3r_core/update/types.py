@@ -172,6 +172,11 @@ class PoseConfig:
             raise SceneError("PoseConfig: iteration counts must be >= 0")
         if not self.yaw_starts_deg:
             raise SceneError("PoseConfig.yaw_starts_deg needs at least one start")
+        r0, r1 = self.registration_refine_radius
+        if self.registration_refine_iterations < 0 or not 0.0 < r1 <= r0:
+            raise SceneError("PoseConfig: registration_refine_iterations must be >= 0 and registration_refine_radius "
+                             f"(start, end) metres with 0 < end <= start, got {self.registration_refine_iterations}, "
+                             f"{self.registration_refine_radius}")
 
 
 TAU_SEM_BY_EMBEDDER: dict[str, float] = {"appearance-hsv": 0.65, "imagenet-minilm": 0.75}

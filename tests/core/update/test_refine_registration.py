@@ -186,3 +186,12 @@ def test_the_right_side_stays_and_no_colours_change_nothing():
     assert flip_check(wrong, model, scene, v.camera, v.depth, None, 0.01) == (wrong, False)
     bare = prepare_model(model.points)  # a model without colours
     assert flip_check(wrong, bare, scene, v.camera, v.depth, rgb, 0.01) == (wrong, False)
+
+
+@pytest.mark.parametrize("kw", [dict(registration_refine_iterations=-1), dict(registration_refine_radius=(0.005, 0.01)),
+                                dict(registration_refine_radius=(0.01, 0.0))])
+def test_a_bad_refinement_setting_is_refused_naming_it(kw):
+    from clutt3r_core.errors import SceneError
+
+    with pytest.raises(SceneError, match="registration_refine"):
+        PoseConfig(**kw)
