@@ -30,7 +30,9 @@ cheaper and sharper tests are available (measured reasons in docs/update.md):
    camera sees through empty space is wrong: a free-space test, so a partial view does not
    fit any pose that covers it). Score = fitness x consistency; near-ties (within
    ``tie_margin``) go to the smallest rotation (symmetric objects look the same in many
-   poses; the least motion is the natural choice).
+   poses; the least motion is the natural choice). Each accepted registration is then refined
+   by a symmetric point-to-plane ICP and checked against its half turns by colour
+   (``depth_refine.py``, ``PoseConfig.registration_refine_iterations`` / ``registration_flip_check``).
 4. **Unexplained regions** (``unexplained_regions``): the new depth pixels that nothing stored
    explains (no unmoved instance, no background point, no accepted fit agrees with them) and
    that stand above the support plane, grouped into connected regions (4-neighbours whose

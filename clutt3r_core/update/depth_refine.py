@@ -6,10 +6,10 @@ reverse, and its last correspondences reach 1.5 cm (``1.5 x in_place_tol``). Bot
 partial (the stored cloud is what the initial views saw, the new view shows one side), so the
 one-way objective is biased: scene points on a face the stored cloud lacks pull towards the
 nearest rim, and model points the camera should see on the observed surface are never pulled
-to it. Measured on the displaced objects of the tuning sets 300-900 (41 registrations,
-docs/update.md "Session 7: rotation"): the true pose is often *closer* to the observed surface
-than the registered one (free-space consistency 0.92 vs 0.71-0.78 on the worst), a residual of
-4-9 deg at 0.1-0.8 cm.
+to it. Measured on the displaced objects' registrations captured on the generated pairs
+(docs/update.md "Session 7: rotation"): the true pose is often *closer* to the observed surface
+than the registered one (free-space consistency 0.92-0.98 vs 0.71-0.78 on the worst: hard_1100,
+easy_1102, intermediate_1903, intermediate_300), a residual of 4-9 deg at 0.1-0.8 cm.
 
 ``refine_registration`` starts from the registered pose and minimises, with Gauss-Newton on a
 small rotation about the moved model's centroid and a translation, the sum of two

@@ -145,9 +145,9 @@ class PoseConfig:
     registration_refine_iterations: int = 15
     """Ours (session 7): Gauss-Newton steps of the symmetric point-to-plane refinement of each
     accepted depth registration (``update/depth_refine.py``; 0 = off). The one-way ICP left a
-    4-9 deg residual on partial views; measured on the displaced objects of the tuning sets
-    300-900, median rotation error up to symmetry 1.9 -> 0.8 deg (docs/update.md, "Session 7:
-    rotation")."""
+    4-9 deg residual on partial views; on the displaced objects' captured registrations of the
+    tuning sets 300-900 the median rotation error up to symmetry goes 1.9 -> 0.8 deg
+    (docs/update.md, "Session 7: rotation")."""
     registration_refine_radius: tuple[float, float] = (0.015, 0.005)
     """Ours, metres: the refinement's pair radius, first and last step (linear between): the
     ICP's last radius (1.5 x in_place_tol), down to ~3x the 1.7 mm stored-to-observed noise floor
