@@ -3,7 +3,7 @@
 Usage::
 
     .venv/bin/python benchmarks/bench_command.py [--base 35e98a0] [--current REF] [--runs 3] [--work /tmp/clutt3r-bench-command]
-        [--scenes hard:0] [--samples sample_seq4] [--no-base] [--out results.json]
+        [--scenes hard:0] [--samples sample_seq4] [--no-base] [--outside] [--out results.json]
 
 Issue 13 measured the whole command, not only the core: on a hard 640x480 8-view scene it
 took 4.1 s (1.9 s importing: the command table imported every command's module and the
@@ -27,6 +27,9 @@ checkout's virtual environment and ``PYTHONPATH`` set to the tree), it measures:
   wall on an idle 2-core machine (calling thread + half the normals' CPU, whose blocks run on
   two threads while it waits; session 6); medians over the processes; mask generation is not
   involved (the scenes have mask candidates);
+- outside (``--outside``): the whole command's CPU minus what it spent inside ``pipeline.segment``,
+  in ``--runs`` more processes per tree, alternating; with paired current / base ratios (each
+  current run against the base run just before it), as for the whole command's wall and CPU;
 - same: whether the two trees' run folders hold identical arrays (``instances.npz``,
   ``cloud.npz``, ``trace/trace.npz``; NaN equal to NaN).
 
@@ -78,6 +81,11 @@ Session 6 (the core under 1 s), measured 2026-12-01 03:24-03:29 UTC against 6cc7
 thread's CPU 0.96 -> 0.71 s, idle-2-core estimate 1.23 -> 1.06 (1.05 -> 0.86 in a run where the
 base's estimate matched its quiet measurement); whole command CPU 2.71 -> 2.54 s, peak 318 -> 283
 MiB; sample_seq4 peak 522 / 536 MiB. Identical arrays (docs/benchmark.md, "Session 6").
+Session 7 (the whole command), measured 2026-12-01 05:11-05:16 UTC against 88dd1b6 (load 4.5-10,
+``--runs 5 --outside``): CPU outside the core (``--outside``) hard 640x480 1.054 -> 0.878 s (paired
+0.91, every pair lower), sample_seq4 2.71 -> 2.30 s (0.85); sample_seq4 peak median 516 -> 492 MiB;
+identical arrays. Wall could not be compared: the machine gave no second core (docs/benchmark.md,
+"Session 7").
 Base and ``--current`` checkouts are ``git worktree``s under ``--work``, kept for the next run
 (``git worktree remove`` them when done).
 
