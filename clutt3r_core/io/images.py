@@ -89,11 +89,10 @@ _malloc_trim = None
 
 def _find_malloc_trim():
     import ctypes
-    import ctypes.util
 
-    try:
-        return getattr(ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6"), "malloc_trim", False)
-    except OSError:  # no C library by that name (not Linux)
+    try:  # the process's own symbols, the C library's among them (ctypes.util.find_library runs ldconfig)
+        return getattr(ctypes.CDLL(None), "malloc_trim", False)
+    except OSError:  # pragma: no cover - a platform without dlopen(NULL)
         return False
 
 
