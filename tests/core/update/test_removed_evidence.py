@@ -13,11 +13,14 @@ Tiny scenes: ``_scenes.two_boxes_on_a_table`` plus a thin box (instance 2)."""
 
 from __future__ import annotations
 
+import functools
 from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st_
 
 from clutt3r_core.scene import MaskCandidates
 from clutt3r_core.update.associate import Association
@@ -197,3 +200,27 @@ def test_a_fragment_moves_with_its_object():
     assert r2.status == "displaced" and r2.match == "depth-carried" and d.depth.fits[2].carried_by == 1
     np.testing.assert_allclose(r2.T_world, res.record(1).T_world)
     assert res.record(0).status == "static"
+
+
+@functools.cache
+def _grasped():
+    return _grasped_view_with_a_table_mask()
+
+
+@settings(max_examples=15, deadline=None)
+@given(dx=st_.floats(-0.06, 0.06), dy=st_.floats(-0.03, 0.03), paint=st_.booleans())
+def test_on_the_table_the_colours_alone_decide(dx, dy, paint):
+    # property: wherever on the table a flat target lies, the fit passes exactly when the image
+    # there shows the object's colours (the depth cannot tell; no other input may decide)
+    st, v, pts, inst = _grasped()
+    cam = v.camera
+    lab, _ = render_labels(pts[inst == 2] + np.array([0.09 + dx, -0.02 + dy, 0.0], np.float32),
+                           np.arange(int(np.sum(inst == 2))), cam, VOXEL)
+    m = (lab >= 0) & np.isfinite(v.depth)
+    rgb = v.rgb.copy()
+    if paint:
+        rgb[m] = GREEN[4]
+    T = np.eye(4)
+    T[:3, 3] = (0.09 + dx, -0.02 + dy, -0.016)
+    tgt = mask_points(cam, v.depth, m, max_points=250)
+    assert _evidence(st, replace(v, rgb=rgb))(2, SimpleNamespace(T_world=T), tgt, -1) is paint
