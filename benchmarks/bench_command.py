@@ -128,7 +128,7 @@ def _tolerant(target):
     except AttributeError:  # an installed entry point that this (older) tree does not define
         return None
 cli._load = _tolerant
-cli.main(sys.argv[1:])
+cli.main()  # the process's own command line (sys.argv), as the clutt3r script calls it
 """
 
 # the whole command with the core's CPU taken out: process CPU minus what the process spent

@@ -103,3 +103,30 @@ def test_a_plain_segment_process_never_imports_tyro(tmp_path: Path):
         mods = json.loads([x for x in r.stdout.splitlines() if x.startswith("MODULES=")][-1][len("MODULES="):])
         assert ("tyro" in mods) is tyro_loaded
         assert (out / "instances.npz").is_file() and (out / "overview.png").is_file()
+
+
+def test_a_finished_segment_process_ends_without_teardown_but_runs_its_exit_handlers(tmp_path: Path):
+    """``main()`` as the program (no argv) ends the process after a plain segment run (issue 13:
+    the interpreter's teardown was 40-70 ms); atexit handlers run, output is flushed, the exit
+    status is 0. Called with an argument list (a library call), it returns as before."""
+    import subprocess
+    import sys
+
+    from clutt3r_core.io import write_sample_layout
+    from tests.core.robustness._scenes import make_scene
+
+    scene = write_sample_layout(make_scene(3, width=160, height=120), tmp_path / "scene")
+    for call, ended in (("main()", True), ("main(sys.argv[1:])", False)):
+        out = tmp_path / f"run_{ended}"
+        prog = ("import atexit, sys\n"
+                "atexit.register(lambda: sys.stdout.write('EXIT HANDLER\\n'))\n"
+                "sys.stdout.write('buffered before\\n')\n"
+                f"from clutt3r_core.cli import main\n{call}\n"
+                "sys.stdout.write('AFTER MAIN\\n')\n")
+        r = subprocess.run([sys.executable, "-c", prog, "segment", str(scene), "--out", str(out)],
+                           capture_output=True, text=True, timeout=300)
+        assert r.returncode == 0, r.stderr[-2000:]
+        assert "buffered before" in r.stdout and "EXIT HANDLER" in r.stdout
+        assert ("AFTER MAIN" in r.stdout) is not ended
+        assert f"-> {out}" in " ".join(r.stderr.split())  # the summary line was flushed
+        assert (out / "overview.png").is_file() and (out / "run.json").is_file()
