@@ -8,15 +8,16 @@ Importing this module registers:
   camera, each run point's instance after the update (-1 once its instance was removed), a
   markdown table of every instance's status and IoU, and the ``UpdateResult`` with the pose
   iterations;
-- an event source (``register_event_source``) "scene updates: pose iterations": the pose
-  optimisation of every displaced instance, update after update. Step n moves each displaced
-  instance's points to its pose at iteration n (instances of one update move together; a
-  shorter optimisation holds its last pose), composed with the motions of earlier updates;
-  colour = the iteration's total loss;
+- an event source (``register_event_source``) "scene updates: pose iterations"
+  (``UpdatePoseIterations``): the pose optimisation of every displaced instance, update after
+  update, in the scene before that update (the instances earlier updates added included). Step n
+  moves each displaced instance's points to its pose at iteration n (instances of one update move
+  together; a shorter optimisation holds its last pose), composed with the motions of earlier
+  updates; colour = the iteration's total loss;
 - the colour layer "update" (``register_color_layer``): the Updates tab's scene after (or
-  just before) the selected update, from ``updated_scene``: instances coloured by id, the points of removed instances pale (ghosts,
-  left where they were last seen). The same scene's positions move the cloud
-  (``panels.updates.update_positions``).
+  just before) the selected update, from ``updated_scene``: instances coloured by id, the points
+  of removed instances pale (ghosts, left where they were last seen). Every tab shows that scene
+  (``clutt3r_viewer.scene_step``), whatever the colour layer.
 """
 
 from __future__ import annotations
