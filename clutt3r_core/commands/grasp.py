@@ -2,6 +2,13 @@
 
 Writes ``RUN/grasps.json`` (the object ``--json`` prints) and ``RUN/grasps.npz`` (the viewer's
 Grasps tab). The gripper convention is in docs/conventions.md ("Gripper").
+
+When the run has updates (``clutt3r update``, ``RUN/updates``) the grasp is planned in the scene
+after the latest one (``--step K`` picks another; 0 = the run as segmented;
+``update.scene_after``): a removed instance is one clear error naming the update that removed it,
+a displaced one is grasped at its new pose, an added one is graspable, and the collision check
+uses the updated cloud (not the initial depth views, which no longer show the scene). The grasp
+file records ``"step"``.
 """
 
 from __future__ import annotations
@@ -21,7 +28,7 @@ from clutt3r_core.grasping.antipodal import AntipodalConfig
 __all__ = ["grasp_command"]
 
 
-def _target_from_query(run: Path, text: str, scene: Path | None) -> tuple[int, str]:
+def _target_from_query(run: Path, text: str, scene: Path | None, step: int | None = None) -> tuple[int, str]:
     """(instance id, note) for a text query through the language backend (clutt3r_core.query)."""
     from clutt3r_core.errors import Clutt3rError
 
@@ -33,7 +40,7 @@ def _target_from_query(run: Path, text: str, scene: Path | None) -> tuple[int, s
     # Re-raised typed (not SystemExit) so the CLI prints one line with status 2 and --debug works
     # (issue 14); the hint is kept. A damaged run fails earlier, in load_run, naming its file.
     try:
-        rq = RunQuery.open(run, scene=scene, progress=True)
+        rq = RunQuery.open(run, scene=scene, progress=True, step=step)
         res = rq.query(text)
     except Clutt3rError as e:
         raise Clutt3rError(f"the query could not be answered: {e}; {hint}") from e
@@ -41,6 +48,30 @@ def _target_from_query(run: Path, text: str, scene: Path | None) -> tuple[int, s
         raise SystemExit(f"clutt3r grasp: the run has no instance for '{text}' to name")
     note = "" if res.confident else f"the query '{text}' matches instance {res.target} only weakly"
     return int(res.target), note
+
+
+def _scene_now(run: Path, step: int, seg, scene: Path | None):
+    """The run's ``SceneAfter`` at ``step``; the added instances' normals face the camera of the post
+    view that added them when the scene folder has that view (else +z, ``oriented_normals``)."""
+    from clutt3r_core.errors import Clutt3rError
+    from clutt3r_core.update.scene_after import added_masks, scene_after
+
+    eyes = {}
+    frames = {f for _, f, _ in added_masks(run, step)}
+    if frames:
+        try:
+            from clutt3r_core.io import load_scene
+            from clutt3r_core.runs import run_scene_folder
+
+            folder = Path(scene) if scene is not None else run_scene_folder(run)
+            if folder is not None:
+                sc = load_scene(folder, load_gt=False)
+                for v in sc.views:
+                    if v.frame in frames:
+                        eyes[v.frame] = v.camera.T_world_camera[:3, 3]
+        except Clutt3rError:
+            pass  # no scene folder: +z (the module says so)
+    return scene_after(run, step, seg=seg, eyes=eyes)
 
 
 def grasp_command(
@@ -53,6 +84,7 @@ def grasp_command(
     scene: Path | None = None,
     planner: str = "",
     config: AntipodalConfig = AntipodalConfig(),
+    step: int | None = None,
 ) -> None:
     """Plan parallel-jaw grasps for one instance of a run (gripper convention: docs/conventions.md).
 
@@ -66,6 +98,7 @@ def grasp_command(
         scene: the scene folder, when the run does not record it (for the unseen-space check).
         planner: grasp planner backend (default: the registry's default, "antipodal").
         config: settings of the antipodal planner.
+        step: with updates (RUN/updates), plan in the scene after this many (default: the latest; 0 = as segmented).
     """
     from rich.console import Console
 
@@ -82,22 +115,37 @@ def grasp_command(
     # Typed errors (a damaged run, a bad base frame) are not caught here: the CLI prints them as one
     # line with status 2, and --debug shows the traceback (issue 14).
     T_base_world = load_base_frame(base_frame) if base_frame is not None else None
+    from clutt3r_core.update.scene_after import chain_length, resolve_step
+
+    n_updates = chain_length(run)
+    step = resolve_step(run, step)  # a bad --step: one clear error before anything loads
     seg = load_run(run)
     notes: list[str] = []
     if query:
-        instance, note = _target_from_query(run, query, scene)
+        instance, note = _target_from_query(run, query, scene, step)
         if note:
             notes.append(note)
-    if not 0 <= instance < seg.num_instances:
-        raise SystemExit(f"clutt3r grasp: {run}: instance {instance} does not exist "
-                         f"(the run has instances 0..{seg.num_instances - 1})")
-    views, warn = run_views(run, scene)
-    if warn:
-        notes.append(warn)
     name = planner or default_backend("grasp_planner")
     kwargs = {"config": config} if name == "antipodal" else {}
-    gp = create_backend("grasp_planner", name, **kwargs)
-    req = request_from_segmentation(seg, instance, views)
+    if step > 0:
+        sa = _scene_now(run, step, seg, scene)
+        sa.check_present(instance)  # a removed instance: names the update that removed it
+        voxel = float(getattr(getattr(seg.trace.config, "pointcloud", None), "voxel_size", 0.005))
+        console.print(f"{sa.label}: collision check against the updated cloud (the initial depth views no longer "
+                      "show the scene)")
+        gp = create_backend("grasp_planner", name, **kwargs)
+        req = sa.grasp_request(instance, voxel_size=voxel)
+    else:
+        if not 0 <= instance < seg.num_instances:
+            raise SystemExit(f"clutt3r grasp: {run}: instance {instance} does not exist "
+                             f"(the run has instances 0..{seg.num_instances - 1})")
+        if n_updates:
+            console.print("the run as segmented (--step 0)")
+        views, warn = run_views(run, scene)
+        if warn:
+            notes.append(warn)
+        gp = create_backend("grasp_planner", name, **kwargs)
+        req = request_from_segmentation(seg, instance, views)
     t0 = time.perf_counter()
     gs = gp.plan(req)
     dt = time.perf_counter() - t0
@@ -105,7 +153,8 @@ def grasp_command(
     if gs.message:
         notes.append(gs.message)
     run = Path(run)
-    gs.save_json(run / "grasps.json", instance, query or None, T_base_world)
+    rec_step = step if n_updates else None  # a run without updates writes what it always wrote
+    gs.save_json(run / "grasps.json", instance, query or None, T_base_world, rec_step)
     gs.save_npz(run / "grasps.npz")
     for n in notes:
         console.print(f"[yellow]note:[/] {n}")
@@ -121,5 +170,5 @@ def grasp_command(
                           f"centre ({p[0, 3]:+.3f}, {p[1, 3]:+.3f}, {p[2, 3]:+.3f}) m  "
                           f"approach ({p[0, 2]:+.2f}, {p[1, 2]:+.2f}, {p[2, 2]:+.2f})")
     if json:
-        sys.stdout.write(_json.dumps(gs.to_json(instance, query or None, T_base_world)) + "\n")
+        sys.stdout.write(_json.dumps(gs.to_json(instance, query or None, T_base_world, rec_step)) + "\n")
         sys.stdout.flush()

@@ -5,6 +5,12 @@ is one JSON object ``{"query", "ranking": [{"instance", "score"}, ...] (every in
 "target", "confident", "time_s"}``. Writes the target's points to ``RUN/query_target.npz``
 (``points`` (P,3) float32 metres, ``colors`` (P,3) uint8, ``instance``, ``query``,
 ``confident``) and ``RUN/query_target.ply``; both are removed when the run has no instance.
+
+When the run has updates (``clutt3r update``, ``RUN/updates``) the query is asked of the scene
+after the latest one (``--step K`` picks another; 0 = the run as segmented), which the output
+names ("scene after update 2 (frame 9)"): removed instances are not ranked, added ones are, and
+the target's points are where the object is now. The JSON object and the npz then carry
+``step`` (and the JSON ``scene``).
 The first query on a run embeds its masks (progress bar) and caches them in
 ``RUN/query_cache.npz``.
 """
@@ -23,7 +29,8 @@ __all__ = ["query_command", "write_target"]
 
 
 def write_target(run: Path, seg, res) -> Path | None:
-    """Write (or remove, when there is no target) ``query_target.npz`` / ``.ply``; the npz path."""
+    """Write (or remove, when there is no target) ``query_target.npz`` / ``.ply``; the npz path.
+    ``seg``: the ``Segmentation`` or the ``SceneAfter`` queried (its points are where objects are now)."""
     import numpy as np
 
     from clutt3r_core.io.images import atomic_write_bytes, atomic_write_npz
@@ -36,8 +43,9 @@ def write_target(run: Path, seg, res) -> Path | None:
             p.unlink(missing_ok=True)
         return None
     pts, cols = target_points(seg, res.target)
+    extra = {"step": np.int32(res.step)} if res.scene else {}
     atomic_write_npz(npz, points=pts, colors=cols, instance=np.int32(res.target), query=np.array(res.query),
-                     confident=np.bool_(res.confident))
+                     confident=np.bool_(res.confident), **extra)
     atomic_write_bytes(ply, ply_bytes(pts, cols, np.full(len(pts), res.target, np.int32)))
     return npz
 
@@ -49,6 +57,7 @@ def query_command(
     top: int = 5,
     backend: str | None = None,
     scene: Path | None = None,
+    step: int | None = None,
 ) -> None:
     """Find the instance of a run that a phrase names (offline language backend).
 
@@ -59,6 +68,7 @@ def query_command(
         top: instances listed in the human-readable output.
         backend: text embedder (default: the registry's default, "imagenet-minilm").
         scene: the scene folder, when the run does not record it (needed once, to embed the masks).
+        step: with updates (RUN/updates), query the scene after this many (default: the latest; 0 = as segmented).
     """
     from rich.console import Console
     from rich.markup import escape
@@ -72,9 +82,9 @@ def query_command(
     # Typed errors (a damaged run, a missing backend) are not caught here: the CLI prints them as
     # one line with status 2, and --debug shows the traceback (issue 14).
     parse_query(text)  # an empty query fails before any model loads
-    rq = RunQuery.open(run, backend=backend, scene=scene, progress=True)
+    rq = RunQuery.open(run, backend=backend, scene=scene, progress=True, step=step)
     res = rq.query(text)
-    write_target(Path(run), rq.seg, res)
+    write_target(Path(run), rq.scene if rq.scene is not None else rq.seg, res)
     total = time.perf_counter() - t0
     if json:
         out = res.to_json()
@@ -82,8 +92,16 @@ def query_command(
         print(_json.dumps(out))
         return
     con = Console()
+    if res.scene:
+        sa = rq.scene
+        gone = ", ".join(f"{k} (update {s})" for k, (s, _) in sorted(sa.removed.items()))
+        undescribed = sorted(set(sa.added) - set(rq.described))
+        con.print(f"{escape(res.scene)}" + (f"; removed, not ranked: {gone}" if gone else "")
+                  + (f"; added: {', '.join(map(str, sorted(sa.added)))}" if sa.added else "")
+                  + (f"; added but not described (no post view or mask in the scene folder), not ranked: "
+                     f"{', '.join(map(str, undescribed))}" if undescribed else ""))
     if res.target is None:
-        con.print(f"{run}: the run has no instances")
+        con.print(f"{run}: the {'scene' if res.scene else 'run'} has no instances")
         return
     verdict = "[green]confident[/]" if res.confident else "[yellow]not confident: nothing matches clearly[/]"
     con.print(f"[bold]{escape(res.query)}[/] -> instance {res.target} ({verdict}); backend {res.backend}, "

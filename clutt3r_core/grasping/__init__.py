@@ -106,8 +106,12 @@ class GraspSet:
             raise SceneFileError(path, f"not a grasp set ({e})") from None
 
     # -- json (grasps.json and `clutt3r grasp --json`) ---------------------------------------
-    def to_json(self, target: int, query: str | None = None, T_base_world: np.ndarray | None = None) -> dict:
+    def to_json(self, target: int, query: str | None = None, T_base_world: np.ndarray | None = None,
+                step: int | None = None) -> dict:
         """``{"target": id, "query": text or null, "grasps": [{"T_world_gripper", "width", "score"}, ...]}``.
+
+        ``step``: for a run with updates, the updates applied to the scene planned in (recorded as
+        ``"step"``; absent for a run without updates).
 
         Best first. With ``T_base_world`` each grasp also carries ``T_base_gripper`` (the robot's
         base frame) and the object gets ``"T_base_world"``; ``T_world_gripper`` stays in world.
@@ -127,6 +131,8 @@ class GraspSet:
             out["T_base_world"] = Tb.tolist()
         if self.message:
             out["message"] = self.message
+        if step is not None:
+            out["step"] = int(step)
         return out
 
     @staticmethod
@@ -147,10 +153,10 @@ class GraspSet:
                         str(obj.get("message", "")))
 
     def save_json(self, path: str | Path, target: int, query: str | None = None,
-                  T_base_world: np.ndarray | None = None) -> Path:
+                  T_base_world: np.ndarray | None = None, step: int | None = None) -> Path:
         from clutt3r_core.io.images import atomic_write_bytes
 
-        atomic_write_bytes(Path(path), json.dumps(self.to_json(target, query, T_base_world), indent=1).encode())
+        atomic_write_bytes(Path(path), json.dumps(self.to_json(target, query, T_base_world, step), indent=1).encode())
         return Path(path)
 
     @staticmethod

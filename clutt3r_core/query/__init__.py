@@ -99,6 +99,12 @@ class RunQuery:
     evidence: NodeEvidence
     instances: InstanceEvidence
     config: QueryConfig = QueryConfig()
+    scene: object = None
+    """The ``update.scene_after.SceneAfter`` queried when the run has updates (None: a run
+    without updates, queried as segmented)."""
+    described: frozenset = frozenset()
+    """Added instance ids the backend described (their mask in the post view); the others
+    present in ``scene`` cannot be ranked."""
 
     @classmethod
     def open(
@@ -110,6 +116,7 @@ class RunQuery:
         progress: bool = False,
         grounder=None,
         use_cache: bool = True,
+        step: int | None = None,
     ) -> "RunQuery":
         """Open a run folder; compute (with a progress bar if asked) and cache its evidence
         when ``RUN/query_cache.npz`` is absent or stale.
@@ -117,7 +124,13 @@ class RunQuery:
         Args:
             scene: the scene folder, when the run does not record one (older runs).
             grounder: an already built backend (tests, benchmarks), instead of ``backend``.
+            step: when the run has updates (``RUN/updates``), the scene after that many of them
+                (None: all; 0: the run as segmented); removed instances are not ranked, added
+                ones are described from their mask in the post view. A step the chain does not
+                have is one clear error.
         """
+        from clutt3r_core.update.scene_after import resolve_step
+
         from clutt3r_core.runs import is_run_folder, load_run, missing_run_file, run_scene_folder
 
         run_dir = Path(run_dir)
@@ -125,6 +138,7 @@ class RunQuery:
             raise SceneFileError(run_dir, "no such run folder")
         if not is_run_folder(run_dir):
             raise SceneFileError(missing_run_file(run_dir), "missing: not a clutt3r run folder")
+        step = resolve_step(run_dir, step)  # a bad --step fails before any model loads
         g = grounder if grounder is not None else create_grounder(backend)
         seg = load_run(run_dir)
         key = run_cache_key(run_dir, g.name, str(getattr(g, "version", "")))
@@ -150,7 +164,28 @@ class RunQuery:
                 ev, stale = refresh_labels(ev, g), True
             if stale:
                 save_node_evidence(ev, run_dir / CACHE_NAME, key)
-        return cls.from_evidence(seg, g, ev, config, run_dir)
+        rq = cls.from_evidence(seg, g, ev, config, run_dir)
+        return rq._after_updates(step, scene_of)
+
+    def _after_updates(self, step: int, scene_of) -> "RunQuery":
+        """This run query on the scene after ``step`` updates (itself when the run has none)."""
+        from dataclasses import replace
+
+        from clutt3r_core.query.added import added_instance_evidence
+        from clutt3r_core.update.scene_after import added_masks, chain_length, scene_after
+
+        if self.run_dir is None or chain_length(self.run_dir) == 0:
+            return self
+        sa = scene_after(self.run_dir, step, seg=self.seg)
+        adds = [a for a in added_masks(self.run_dir, step) if a[0] in sa.added]
+        inst, done = self.instances, frozenset()
+        if adds:
+            try:
+                sc = scene_of()
+            except Clutt3rError:
+                sc = None  # no scene folder: the added instances stay unranked (the result says so)
+            inst, done = added_instance_evidence(self.instances, self.evidence, self.grounder, sc, adds)
+        return replace(self, scene=sa, instances=inst, described=done)
 
     @classmethod
     def from_evidence(cls, seg, grounder, ev: NodeEvidence, config: QueryConfig = QueryConfig(),
@@ -163,12 +198,39 @@ class RunQuery:
         """In memory, without a run folder (benchmarks, tests)."""
         return cls.from_evidence(seg, grounder, compute_node_evidence(seg, scene, grounder, progress), config)
 
+    def ranked_ids(self) -> np.ndarray:
+        """(K,) int ids a query ranks: every run instance, or in an updated scene the ones
+        present (run instances not removed, added ones the backend described)."""
+        if self.scene is None:
+            return np.arange(self.instances.num_instances)
+        sa = self.scene
+        return np.array([k for k in sa.present.tolist() if k not in sa.added or k in self.described], np.int64)
+
     def query(self, text: str) -> QueryResult:
         t0 = time.perf_counter()
         q = parse_query(text)
         emb = self.grounder.embed_text([q.name])[0] if q.name else None
-        res = score_instances(self.instances, q, emb, self.config, self.evidence.label_embeddings,
-                              self.evidence.labels, self.evidence.backend)
+        if self.scene is None:
+            res = score_instances(self.instances, q, emb, self.config, self.evidence.label_embeddings,
+                                  self.evidence.labels, self.evidence.backend)
+            return _with_time(res, time.perf_counter() - t0)
+        # an updated scene: only the instances in it are scored (the name term is z-scored over
+        # them, so a removed object does not shift the others' scores), then mapped back to ids
+        ids = self.ranked_ids()
+        e = self.instances
+        sub = InstanceEvidence(e.grounding[ids], e.colors[ids], e.features[ids], e.n_views[ids])
+        r = score_instances(sub, q, emb, self.config, self.evidence.label_embeddings,
+                            self.evidence.labels, self.evidence.backend)
+        n = max(e.num_instances, int(self.scene.present.max(initial=-1)) + 1)
+        scores = np.full(n, np.nan, np.float32)
+        scores[ids] = r.scores
+        nan = float("nan")
+        expl = [Explanation(nan, nan, (), (), (), ())] * n
+        for j, k in enumerate(ids):
+            expl[int(k)] = r.explanations[j]
+        ranking = tuple(int(ids[j]) for j in r.ranking)
+        res = QueryResult(r.query, scores, ranking, ranking[0] if ranking else None, r.confident, tuple(expl),
+                          r.backend, name_match=r.name_match, step=self.scene.step, scene=self.scene.label)
         return _with_time(res, time.perf_counter() - t0)
 
 

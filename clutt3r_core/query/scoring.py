@@ -181,10 +181,18 @@ class QueryResult:
     time_s: float = 0.0
     name_match: float = float("nan")
     """Label mode: best cosine of the query's name with a label (1 = the name is a class)."""
+    step: int = 0
+    """Updates of the run's chain applied to the scene queried (0 = the run as segmented)."""
+    scene: str = ""
+    """The scene queried, e.g. "scene after update 2 (frame 9)"; "" for a run without updates.
+    In an updated scene, ids not in it (removed, or added but not described) score NaN and are
+    not in ``ranking``."""
 
     def __post_init__(self) -> None:
-        if self.scores.shape != (len(self.explanations),) or sorted(self.ranking) != list(range(len(self.scores))):
-            raise SceneError("QueryResult: one score and one explanation per instance; ranking is a permutation")
+        ranked = np.flatnonzero(np.isfinite(self.scores)) if self.scene else np.arange(len(self.scores))
+        if self.scores.shape != (len(self.explanations),) or sorted(self.ranking) != ranked.tolist():
+            raise SceneError("QueryResult: one score and one explanation per instance; ranking is a permutation "
+                             "of the instances scored")
 
     def to_json(self) -> dict:
         """The CLI's JSON object (``clutt3r query --json``)."""
@@ -194,7 +202,7 @@ class QueryResult:
             "target": None if self.target is None else int(self.target),
             "confident": bool(self.confident),
             "time_s": round(float(self.time_s), 4),
-        }
+        } | ({"step": int(self.step), "scene": self.scene} if self.scene else {})
 
 
 def _zscore(x: np.ndarray) -> np.ndarray:
