@@ -1,18 +1,20 @@
 """Start reading ``clutt3r segment``'s scene before the command line is parsed (issue 13).
 
-A ``clutt3r segment`` process spends about 0.25 s of one core on pure Python before it can
-read its scene: importing tyro and the configuration's modules (pointcloud, super-voxels,
-grouping, ...) and building the parser of ``SegmentConfig``'s ~70 fields. The scene's PNG
-decoders release the GIL, so the loading can run beside that work, on the second core.
+Before a ``clutt3r segment`` process can read its scene it spends 0.1-0.25 s of one core on
+pure Python: importing the configuration's modules (pointcloud, super-voxels, grouping, ...),
+rich, the pipeline and the embedder registry, and, for command lines that are not plain
+(``commands.segment_run.plain_arguments``), importing tyro and building the parser of
+``SegmentConfig``'s ~70 fields. The scene's PNG decoders release the GIL, so the loading can
+run beside that work, on the second core.
 
-``start(args)`` is called by ``cli.main`` with the arguments after ``segment``, before tyro
-is imported. It does not parse them: among the arguments that do not start with ``-``, it
+``start(args)`` is called by ``cli.main`` with the arguments after ``segment``, before any of
+that is imported. It does not parse them: among the arguments that do not start with ``-``, it
 looks for those that name a scene folder (what ``load_scene`` accepts), and if there is
-exactly one, loads it on a daemon thread. tyro then parses the command line as always, and
-``take(scene)`` in the command returns the loaded scene only if tyro's ``SCENE`` is that
+exactly one, loads it on a daemon thread. The command line is then parsed as always, and
+``take(scene)`` in the command returns the loaded scene only if the parsed ``SCENE`` is that
 same path; otherwise (a guess that was wrong, ``--help``, a library call of the command)
-it returns None and the command loads its scene itself. So tyro stays the only parser: a
-guess can cost wasted work, never a different result.
+it returns None and the command loads its scene itself. So the guess never decides anything:
+it can cost wasted work, never a different result.
 
 A loading error is kept and raised by ``take``, where the command would have raised it
 (after the arguments were parsed: ``--help`` and bad arguments still answer first).
