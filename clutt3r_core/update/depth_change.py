@@ -520,7 +520,8 @@ def _register_all(state, view: View, config: UpdateConfig, ks: list[int], target
                 ref = refined_registration(reg, prepared, pts, cam, view.depth, cc.in_place_tol,
                                            iterations=config.pose.registration_refine_iterations,
                                            radius_start=config.pose.registration_refine_radius[0],
-                                           radius_end=config.pose.registration_refine_radius[1])
+                                           radius_end=config.pose.registration_refine_radius[1],
+                                           rgb=view.rgb, keep=config.pose.registration_refine_keep)
                 if ref is not reg and ref.fitness >= cc.accept_fitness and ref.consistency >= cc.accept_consistency:
                     iou_ref = fit_iou(model, ref.T_world, cam, state.voxel_size, occ, target)
                     if iou_ref >= accept_iou(k):
@@ -531,7 +532,8 @@ def _register_all(state, view: View, config: UpdateConfig, ks: list[int], target
                                            photo_margin=config.pose.registration_flip_margins[1],
                                            iterations=config.pose.registration_refine_iterations,
                                            radius_start=config.pose.registration_refine_radius[0],
-                                           radius_end=config.pose.registration_refine_radius[1])
+                                           radius_end=config.pose.registration_refine_radius[1],
+                                           symmetric_ratio=config.pose.registration_flip_symmetric_ratio)
                 if flipped and flip.fitness >= cc.accept_fitness and flip.consistency >= cc.accept_consistency:
                     iou_flip = fit_iou(model, flip.T_world, cam, state.voxel_size, occ, target)
                     if iou_flip >= accept_iou(k):

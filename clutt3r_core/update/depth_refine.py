@@ -39,7 +39,8 @@ from clutt3r_core.normals import _one_openmp_thread
 from clutt3r_core.scene import Camera
 from clutt3r_core.update.depth import RegistrationModel, _depth_at
 
-__all__ = ["Refinement", "flip_check", "refine_registration", "refined_registration"]
+__all__ = ["Refinement", "flip_check", "half_turn_symmetric", "pose_quality", "refine_registration",
+           "refined_registration"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -124,13 +125,32 @@ def refine_registration(model: RegistrationModel, scene: np.ndarray, T_world: np
     return Refinement(T, np.asarray(path).reshape(-1, 4, 4), np.asarray(cost, np.float64))
 
 
+def pose_quality(model: RegistrationModel, T: np.ndarray, camera: Camera, depth: np.ndarray, tol: float,
+                 rgb: np.ndarray | None = None, photo_weight: float = 2.0) -> float:
+    """The refinement's keep criterion, no ground truth: the free-space consistency
+    (``depth._consistency``, 0-1) of ``model`` moved by ``T``, minus ``photo_weight`` x its mean
+    colour error (0-1) on the observed surface when ``rgb`` and the model's colours are given."""
+    from clutt3r_core.update.depth import _consistency
+
+    cons, photo = _consistency(model.points, T, camera, depth, tol, model.colors, rgb)
+    return cons - photo_weight * photo if rgb is not None and np.isfinite(photo) else cons
+
+
 def refined_registration(reg, model: RegistrationModel, scene: np.ndarray, camera: Camera, depth: np.ndarray,
-                         tol: float, *, iterations: int = 15, radius_start: float = 0.015, radius_end: float = 0.005):
+                         tol: float, *, iterations: int = 15, radius_start: float = 0.015, radius_end: float = 0.005,
+                         rgb: np.ndarray | None = None, keep: tuple[float, float] | None = None):
     """``reg`` (a ``depth.Registration``) moved to its ``refine_registration`` pose, with its
     fitness, consistency, score and rmse measured again there (``register``'s definitions, on
     the same model points, within ``tol``) and the refinement's iterations appended to its
     path (its ``path_cost`` gets the truncated distance before each step); alternatives are
-    dropped (the refined pose is the one to judge). ``reg`` itself when no step was taken."""
+    dropped (the refined pose is the one to judge). ``reg`` itself when no step was taken.
+
+    ``keep`` = (photo_weight, margin): ``reg`` itself too when the refined pose's
+    ``pose_quality`` (with ``rgb``) is more than ``margin`` below ``reg``'s. Why: the
+    objective's two point-to-plane terms can agree on a wrong pose when the stored cloud is
+    partial or its normals leave a direction free (a can's axis tilts, a box's faces slide),
+    and the free space and the colours the refinement does not use tell such a pose (measured
+    on the tuning pairs 300-900: docs/update.md, "Session 7: refinement regressions")."""
     from dataclasses import replace
 
     from clutt3r_core.update.depth import _consistency
@@ -140,6 +160,9 @@ def refined_registration(reg, model: RegistrationModel, scene: np.ndarray, camer
     if not len(ref.path):
         return reg
     T = ref.T_world
+    if keep is not None and pose_quality(model, T, camera, depth, tol, rgb, keep[0]) \
+            < pose_quality(model, reg.T_world, camera, depth, tol, rgb, keep[0]) - keep[1]:
+        return reg
     with _one_openmp_thread():
         dist = model.tree.query(np.ascontiguousarray((np.asarray(scene, np.float64) - T[:3, 3]) @ T[:3, :3]))[0]
     fitness = float((dist <= tol).mean())
@@ -151,9 +174,20 @@ def refined_registration(reg, model: RegistrationModel, scene: np.ndarray, camer
                    path_cost=cost, alternatives=())
 
 
+def half_turn_symmetric(model: RegistrationModel, S: np.ndarray, ratio: float = 1.0) -> bool:
+    """Whether the motion ``S`` ((4, 4), model frame) maps the model's points onto themselves:
+    their mean distance to the nearest unmoved point is at most ``ratio`` x the points' own mean
+    nearest-neighbour spacing (the sampling floor)."""
+    with _one_openmp_thread():
+        spacing = float(model.tree.query(model.points, k=2)[0][:, 1].mean())
+        moved = float(model.tree.query(model.points @ S[:3, :3].T + S[:3, 3])[0].mean())
+    return moved <= ratio * spacing
+
+
 def flip_check(reg, model: RegistrationModel, scene: np.ndarray, camera: Camera, depth: np.ndarray,
                rgb: np.ndarray, tol: float, *, score_margin: float = 0.05, photo_margin: float = 0.02,
-               iterations: int = 15, radius_start: float = 0.015, radius_end: float = 0.005):
+               iterations: int = 15, radius_start: float = 0.015, radius_end: float = 0.005,
+               symmetric_ratio: float | None = 1.0):
     """The half-turn ambiguity of a registration, decided by colour: ``reg``'s pose turned by
     180 deg about each principal axis of the model (through its centroid), each refined
     (``refined_registration``); the one of least colour error (``depth._consistency``'s photo
@@ -165,7 +199,14 @@ def flip_check(reg, model: RegistrationModel, scene: np.ndarray, camera: Camera,
     Why: a box or a flat object is nearly the same shape turned by a half turn about an axis, and
     the registration picks between such poses by geometry (and then by the least rotation);
     a printed texture is not symmetric. Measured on the cached pairs (docs/update.md, "Session 7:
-    rotation")."""
+    rotation").
+
+    A half turn that maps the stored points onto themselves (``half_turn_symmetric`` with
+    ``symmetric_ratio``; None: none skipped) is not tried: it cannot improve the geometry, and
+    the turned partial cloud's refinement lands elsewhere (easy_300: 0.3 -> 4.6 deg up to
+    symmetry for a 0.035 lower colour error). The cost: a symmetric printed box keeps the
+    texture's orientation the registration chose (docs/update.md, "Session 7: refinement
+    regressions")."""
     from dataclasses import replace
 
     from clutt3r_core.update.depth import _consistency
@@ -184,6 +225,8 @@ def flip_check(reg, model: RegistrationModel, scene: np.ndarray, camera: Camera,
         S = np.eye(4)
         S[:3, :3] = _R.from_rotvec(axis * np.pi).as_matrix()
         S[:3, 3] = c - S[:3, :3] @ c  # the half turn about the model's own axis, in its old pose
+        if symmetric_ratio is not None and half_turn_symmetric(model, S, symmetric_ratio):
+            continue
         # the path so far is kept: the replay shows the ICP, its refinement, then the half turn's
         start = replace(reg, T_world=reg.T_world @ S, alternatives=())
         r = refined_registration(start, model, scene, camera, depth, tol, iterations=iterations,

@@ -152,6 +152,14 @@ class PoseConfig:
     """Ours, metres: the refinement's pair radius, first and last step (linear between): the
     ICP's last radius (1.5 x in_place_tol), down to ~3x the 1.7 mm stored-to-observed noise floor
     measured at the true poses."""
+    registration_refine_keep: tuple[float, float] | None = (2.0, 0.01)
+    """Ours (session 7, H6): (photo weight, margin) of the refinement's keep test
+    (``depth_refine.refined_registration``): the refined pose replaces the ICP's only when its
+    free-space consistency minus weight x mean colour error (0-1) is at most the margin below
+    the ICP pose's (None: always). On the captured tuning pairs 300-900 it keeps the ICP pose on
+    hard_302, intermediate_301/700/701 and easy_903 (refined 1.2 -> 6.2, 13 -> 17, 2.3 -> 14,
+    1.4 -> 3.3 deg, 0.22 -> 0.55 cm) and loses no pair the refinement improved by > 1 deg;
+    weights 1-4 and margins 0-0.01 measured, docs/update.md "Session 7: refinement regressions"."""
     registration_flip_check: bool = True
     """Ours (session 7): with colours, an accepted depth registration is compared with its
     half turns about the model's principal axes (``depth_refine.flip_check``): a nearly
@@ -162,6 +170,11 @@ class PoseConfig:
     fitness x consistency is at most the first below the pose's and its mean colour error (0-1)
     at least the second below. Set before measuring (a geometric tie; 5 grey levels of 255),
     not tuned."""
+    registration_flip_symmetric_ratio: float | None = 1.0
+    """Ours (session 7, H6): ``flip_check`` skips a half turn that maps the stored points onto
+    themselves (mean nearest distance at most this x their own spacing; None: none skipped):
+    it cannot improve the geometry (easy_300: the turned cloud's refinement went 0.3 -> 4.6 deg
+    up to symmetry; the half turns that fixed hard_700 / intermediate_902 measure 1.6 / 1.2)."""
 
     def __post_init__(self) -> None:
         if not 0.0 < self.tau_iou <= 1.0:
@@ -177,6 +190,12 @@ class PoseConfig:
             raise SceneError("PoseConfig: registration_refine_iterations must be >= 0 and registration_refine_radius "
                              f"(start, end) metres with 0 < end <= start, got {self.registration_refine_iterations}, "
                              f"{self.registration_refine_radius}")
+        if self.registration_refine_keep is not None and min(self.registration_refine_keep) < 0.0:
+            raise SceneError("PoseConfig.registration_refine_keep must be None or (photo weight, margin) >= 0, got "
+                             f"{self.registration_refine_keep}")
+        if self.registration_flip_symmetric_ratio is not None and self.registration_flip_symmetric_ratio < 0.0:
+            raise SceneError("PoseConfig.registration_flip_symmetric_ratio must be None or >= 0, got "
+                             f"{self.registration_flip_symmetric_ratio}")
 
 
 TAU_SEM_BY_EMBEDDER: dict[str, float] = {"appearance-hsv": 0.65, "imagenet-minilm": 0.75}
