@@ -533,7 +533,7 @@ def _register_all(state, view: View, config: UpdateConfig, ks: list[int], target
                                            iterations=config.pose.registration_refine_iterations,
                                            radius_start=config.pose.registration_refine_radius[0],
                                            radius_end=config.pose.registration_refine_radius[1],
-                                           symmetric_ratio=config.pose.registration_flip_symmetric_ratio)
+                                           symmetric=config.pose.registration_flip_symmetric)
                 if flipped and flip.fitness >= cc.accept_fitness and flip.consistency >= cc.accept_consistency:
                     iou_flip = fit_iou(model, flip.T_world, cam, state.voxel_size, occ, target)
                     if iou_flip >= accept_iou(k):
