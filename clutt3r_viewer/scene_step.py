@@ -175,7 +175,7 @@ def scene_grasp_request(data, step: int, k: int, knn: int = 16):
     updated scene (a cloud-only collision check; the Grasps tab says so)."""
     from clutt3r_core.errors import SceneError
     from clutt3r_core.grasping import GraspRequest
-    from clutt3r_core.normals import estimate_normals
+    from clutt3r_core.update.scene_after import oriented_normals
     from clutt3r_viewer.panels.update_sources import update_motions
 
     seg = data.seg
@@ -196,9 +196,7 @@ def scene_grasp_request(data, step: int, k: int, knn: int = 16):
             if a.instance not in present:
                 continue
             p = np.asarray(a.points, np.float64)  # as added: oriented towards the camera that saw it
-            n = estimate_normals(p, knn)
-            eye = u.camera.T_world_camera[:3, 3] if u.camera is not None else p.mean(axis=0) + [0.0, 0.0, 1.0]
-            n[np.einsum("ij,ij->i", n, eye - p) < 0] *= -1
+            n = oriented_normals(p, u.camera.T_world_camera[:3, 3] if u.camera is not None else None, knn)
             T = M[a.instance]  # then moved by the later updates, normals turned with it
             pts.append(p @ T[:3, :3].T + T[:3, 3])
             nrms.append(n @ T[:3, :3].T)

@@ -90,49 +90,16 @@ def _in_scene(s: "Session", scores: np.ndarray, text_embedding: np.ndarray | Non
 def added_instance_evidence(rq, data) -> tuple[object, frozenset[int]]:
     """``rq.instances`` (the run's ``InstanceEvidence``) extended with one row per instance id
     the updates of ``data`` added, each described by the backend from its mask in the post view
-    that added it (the scene folder's view of that frame, ``NewInstance.mask_id``), aggregated as
-    the core aggregates a run instance's masks (``aggregate_instances``, one mask); rows of ids
-    without a description are zeros. Returns (evidence, the ids described)."""
-    from types import SimpleNamespace as NS
-
+    that added it (the core's ``query.added.added_instance_evidence``, which ``clutt3r query``
+    uses too); rows of ids without a description are zeros. Returns (evidence, the ids described)."""
     from clutt3r_core.io import load_scene
-    from clutt3r_core.language.colors import color_shares
-    from clutt3r_core.query.evidence import InstanceEvidence, NodeEvidence, aggregate_instances
+    from clutt3r_core.query.added import added_instance_evidence as describe
 
-    base = rq.instances
-    adds = [(u.frame, a) for u in data.updates if u.result is not None for a in u.result.added if a.mask_id >= 0]
+    adds = [(a.instance, u.frame, a.mask_id) for u in data.updates if u.result is not None
+            for a in u.result.added if a.mask_id >= 0]
     if not adds or data.scene_root is None:
-        return base, frozenset()
-    scene = load_scene(data.scene_root)
-    n = max(base.num_instances, 1 + max(a.instance for _, a in adds))
-    out = [np.zeros((n, x.shape[1]), np.float32) for x in (base.grounding, base.colors, base.features)]
-    n_views = np.zeros(n, np.int32)
-    i0 = base.num_instances
-    for x, y in zip(out, (base.grounding, base.colors, base.features)):
-        x[:i0] = y
-    n_views[:i0] = base.n_views
-    done = set()
-    for frame in sorted({f for f, _ in adds}):
-        try:
-            v = scene.view_by_frame(int(frame))
-            these = [a for f, a in adds if f == frame]
-            masks = v.masks.stack([v.masks.index_of(a.mask_id) for a in these])
-        except (KeyError, ValueError, AttributeError):
-            continue  # the frame or its masks are not in the scene folder: left undescribed
-        g = rq.grounder.mask_evidence(v.rgb, masks)
-        m = len(these)
-        ev = NodeEvidence(np.arange(m), g.features, g.grounding, color_shares(v.rgb, masks),
-                          masks.reshape(m, -1).sum(axis=1).astype(np.float32),
-                          np.full(m, masks.shape[1] * masks.shape[2], np.float32), rq.evidence.backend,
-                          rq.evidence.version, rq.evidence.label_embeddings, rq.evidence.labels)
-        agg = aggregate_instances(NS(num_instances=m, instance_nodes=lambda i: (i,)), ev,
-                                  label_mode=rq.evidence.label_embeddings is not None)
-        for j, a in enumerate(these):
-            for x, y in zip(out, (agg.grounding, agg.colors, agg.features)):
-                x[a.instance] = y[j]
-            n_views[a.instance] = 1
-            done.add(a.instance)
-    return InstanceEvidence(out[0], out[1], out[2], n_views), frozenset(done)
+        return rq.instances, frozenset()
+    return describe(rq.instances, rq.evidence, rq.grounder, load_scene(data.scene_root), adds)
 
 
 class QueryPanel(Panel):

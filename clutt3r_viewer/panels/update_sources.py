@@ -229,16 +229,14 @@ def update_motions(updates, n_instances: int) -> np.ndarray:
     """(U + 1, I, 4, 4) world motion of every instance id after 0, 1, .., U updates of the
     chain ``updates`` (``UpdateFrame``s, chain order; index 0 = the initial segmentation, all
     identity). A displaced instance's motion composes as ``T_world(u) @ motion(u - 1)`` (issue
-    10: ``pose_new = T_world @ pose_old``); the others keep theirs."""
+    10: ``pose_new = T_world @ pose_old``; the core's ``update.scene_after.compose_motions``);
+    the others keep theirs. I also covers every id an update names."""
+    from clutt3r_core.update.scene_after import compose_motions
+
     ids = [r.instance for u in updates if u.result is not None for r in u.result.instances]
-    n = max(int(n_instances), 1 + max(ids, default=-1))
-    out = np.tile(np.eye(4), (len(updates) + 1, n, 1, 1))
-    for u, frame in enumerate(updates):
-        out[u + 1] = out[u]
-        for r in () if frame.result is None else frame.result.instances:
-            if r.status == "displaced" and r.T_world is not None:
-                out[u + 1, r.instance] = np.asarray(r.T_world, np.float64) @ out[u, r.instance]
-    return out
+    steps = [[] if u.result is None else [(r.instance, r.T_world) for r in u.result.instances
+                                         if r.status == "displaced" and r.T_world is not None] for u in updates]
+    return compose_motions(steps, max(int(n_instances), 1 + max(ids, default=-1)))
 
 
 def updated_scene(data, u: int, idx: np.ndarray, after: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
