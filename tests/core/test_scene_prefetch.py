@@ -36,7 +36,8 @@ def test_the_one_scene_folder_among_the_arguments_is_guessed(scene_dir, tmp_path
     s = str(scene_dir)
     assert scene_prefetch.scene_argument([s, "--out", str(tmp_path / "run")]) == scene_dir
     assert scene_prefetch.scene_argument(["--out", str(tmp_path / "run"), "--preset", "paper", s]) == scene_dir
-    assert scene_prefetch.scene_argument([str(scene_dir / "transforms.json"), "--out", "x"]) == scene_dir / "transforms.json"
+    tj = scene_dir / "transforms.json"
+    assert scene_prefetch.scene_argument([str(tj), "--out", "x"]) == tj
     # none, two, a folder that is not a scene, or --help (tyro answers it and exits): no guess
     assert scene_prefetch.scene_argument(["--out", "x"]) is None
     assert scene_prefetch.scene_argument([s, "--out", s]) is None
