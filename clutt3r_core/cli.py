@@ -10,6 +10,12 @@ missing optional package) prints one line, ``clutt3r: error: <file>: <problem>``
 with status 2, like tyro's own errors for bad arguments. ``--debug`` (anywhere on the
 command line) or ``CLUTT3R_DEBUG=1`` prints the traceback too. Library calls keep
 raising the typed errors; only this entry point turns them into a line.
+
+``clutt3r segment`` starts before the others (issue 13, whole-command time): its scene starts
+loading before tyro is imported, a plain ``SCENE --out RUN [--preset P]`` runs without tyro's
+parser, and ``main()`` called without an argument list (the ``clutt3r`` script, ``python -m``)
+ends the process when the run is written, without the interpreter's teardown
+(``_segment_without_parser``, ``_end_process``).
 """
 
 from __future__ import annotations
