@@ -223,3 +223,16 @@ def _rot(a: float) -> np.ndarray:
     c, s = np.cos(a), np.sin(a)
     T[:2, :2] = [[c, -s], [s, c]]
     return T
+
+
+def test_run_without_updates_is_queried_as_before(run_copy, fake_registered, capsys):
+    shutil.rmtree(run_copy / "updates")
+    query_command(run_copy, "orange", json=True, backend="fake-ground", step=0)  # --step 0 is always valid
+    d = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert set(d) == {"query", "ranking", "target", "confident", "time_s"}  # no step/scene keys: as before
+    with np.load(run_copy / "query_target.npz") as z:
+        assert "step" not in z.files
+    with pytest.raises(Clutt3rError, match=r"--step 1 does not exist: the run has 0 update\(s\)"):
+        RunQuery.open(run_copy, grounder=FakeGrounder(), step=1)
+    grasp_command(run_copy, instance=0, json=True, top=1)
+    assert "step" not in json.loads(capsys.readouterr().out.strip().splitlines()[-1])
