@@ -26,6 +26,13 @@ radius shrinks linearly from ``radius_start`` (the ICP's last radius: the refine
 from the pairs the ICP ended with) to ``radius_end`` (about 3x the 1.7 mm noise floor of the
 stored-to-observed distance measured at the true poses). Pure numpy, one OpenMP thread (as
 ``register``), ~12 ms per call on 250 scene points and a 1500-point model.
+
+Both terms can agree on a wrong pose (a partial stored cloud; a can whose side normals leave its
+tilt loosely held; a box face sliding along its rim), so ``refined_registration`` keeps the
+refined pose only when a measure the objective does not use, ``pose_quality`` (free-space
+consistency minus 2x the colour error), is not worse by more than a margin; ``flip_check``
+demands a larger colour gain for a half turn that maps the stored points onto themselves
+(``half_turn_symmetric``). Measured in docs/update.md, "Session 7: refinement regressions".
 """
 
 from __future__ import annotations
