@@ -50,30 +50,6 @@ def _target_from_query(run: Path, text: str, scene: Path | None, step: int | Non
     return int(res.target), note
 
 
-def _scene_now(run: Path, step: int, seg, scene: Path | None):
-    """The run's ``SceneAfter`` at ``step``; the added instances' normals face the camera of the post
-    view that added them when the scene folder has that view (else +z, ``oriented_normals``)."""
-    from clutt3r_core.errors import Clutt3rError
-    from clutt3r_core.update.scene_after import added_masks, scene_after
-
-    eyes = {}
-    frames = {f for _, f, _ in added_masks(run, step)}
-    if frames:
-        try:
-            from clutt3r_core.io import load_scene
-            from clutt3r_core.runs import run_scene_folder
-
-            folder = Path(scene) if scene is not None else run_scene_folder(run)
-            if folder is not None:
-                sc = load_scene(folder, load_gt=False)
-                for v in sc.views:
-                    if v.frame in frames:
-                        eyes[v.frame] = v.camera.T_world_camera[:3, 3]
-        except Clutt3rError:
-            pass  # no scene folder: +z (the module says so)
-    return scene_after(run, step, seg=seg, eyes=eyes)
-
-
 def grasp_command(
     run: Annotated[Positional[Path], tyro.conf.arg(metavar="RUN")],
     query: Annotated[Positional[str], tyro.conf.arg(metavar="QUERY")] = "",
@@ -103,7 +79,7 @@ def grasp_command(
     from rich.console import Console
 
     from clutt3r_core.grasping import load_base_frame
-    from clutt3r_core.grasping.request import request_from_segmentation, run_views
+    from clutt3r_core.grasping.request import request_from_segmentation, run_views, scene_now
     from clutt3r_core.registry import create_backend, default_backend
     from clutt3r_core.runs import load_run
 
@@ -128,7 +104,7 @@ def grasp_command(
     name = planner or default_backend("grasp_planner")
     kwargs = {"config": config} if name == "antipodal" else {}
     if step > 0:
-        sa = _scene_now(run, step, seg, scene)
+        sa = scene_now(run, step, seg, scene)
         sa.check_present(instance)  # a removed instance: names the update that removed it
         voxel = float(getattr(getattr(seg.trace.config, "pointcloud", None), "voxel_size", 0.005))
         console.print(f"{sa.label}: collision check against the updated cloud (the initial depth views no longer "

@@ -10,7 +10,7 @@ import numpy as np
 from clutt3r_core.errors import Clutt3rError, SceneError
 from clutt3r_core.grasping import DepthView, GraspRequest
 
-__all__ = ["request_from_segmentation", "depth_views", "run_views", "request_from_run"]
+__all__ = ["request_from_segmentation", "depth_views", "run_views", "request_from_run", "scene_now"]
 
 
 def depth_views(scene) -> tuple[DepthView, ...]:
@@ -68,10 +68,46 @@ def run_views(run_dir: str | Path, scene: str | Path | None = None) -> tuple[tup
     return views, ""
 
 
-def request_from_run(run_dir: str | Path, instance: int, scene: str | Path | None = None):
-    """(request, segmentation, warning) for ``instance`` of the run in ``run_dir``."""
-    from clutt3r_core.runs import load_run
+def request_from_run(run_dir: str | Path, instance: int, scene: str | Path | None = None, step: int | None = None):
+    """(request, segmentation, warning) for ``instance`` of the run in ``run_dir``.
 
+    When the run has updates (``RUN/updates``), the request is in the scene after ``step`` of them
+    (None: the latest; 0: the run as segmented; ``scene_now``), as ``clutt3r grasp`` plans: a
+    removed instance is a ``SceneError`` naming the update, the cloud is the updated one and there
+    are no depth views (the initial views no longer show the scene)."""
+    from clutt3r_core.runs import load_run
+    from clutt3r_core.update.scene_after import resolve_step
+
+    step = resolve_step(run_dir, step)
     seg = load_run(run_dir)
+    if step > 0:
+        sa = scene_now(run_dir, step, seg, scene)
+        voxel = float(getattr(getattr(seg.trace.config, "pointcloud", None), "voxel_size", 0.005))
+        return sa.grasp_request(instance, voxel_size=voxel), seg, f"{sa.label}: collision check against the updated cloud"
     views, warn = run_views(run_dir, scene)
     return request_from_segmentation(seg, instance, views), seg, warn
+
+
+def scene_now(run: str | Path, step: int | None, seg=None, scene: str | Path | None = None):
+    """The run's ``update.scene_after.SceneAfter`` at ``step`` (None: the latest); the added
+    instances' normals face the camera of the post view that added them when the scene folder
+    has that view (else +z, ``scene_after.oriented_normals``)."""
+    from clutt3r_core.update.scene_after import added_masks, resolve_step, scene_after
+
+    step = resolve_step(run, step)
+    eyes = {}
+    frames = {f for _, f, _ in added_masks(run, step)}
+    if frames:
+        try:
+            from clutt3r_core.io import load_scene
+            from clutt3r_core.runs import run_scene_folder
+
+            folder = Path(scene) if scene is not None else run_scene_folder(run)
+            if folder is not None:
+                sc = load_scene(folder, load_gt=False)
+                for v in sc.views:
+                    if v.frame in frames:
+                        eyes[v.frame] = v.camera.T_world_camera[:3, 3]
+        except Clutt3rError:
+            pass  # no scene folder: +z (the module says so)
+    return scene_after(run, step, seg=seg, eyes=eyes)

@@ -236,3 +236,18 @@ def test_run_without_updates_is_queried_as_before(run_copy, fake_registered, cap
         RunQuery.open(run_copy, grounder=FakeGrounder(), step=1)
     grasp_command(run_copy, instance=0, json=True, top=1)
     assert "step" not in json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+
+
+def test_python_grasp_request_is_the_commands(chain):
+    from clutt3r_core.grasping.request import request_from_run
+
+    _, run, seg, removed, moved, _ = chain
+    req, _, note = request_from_run(run, moved)
+    assert note.startswith("scene after update 2") and req.views == ()
+    np.testing.assert_allclose(req.points[req.target].mean(0),
+                               np.asarray(seg.points, np.float64)[seg.instance == moved].mean(0) + SHIFT_1 + SHIFT_2,
+                               atol=1e-5)
+    req0, _, _ = request_from_run(run, moved, step=0)
+    np.testing.assert_array_equal(req0.points, seg.points)
+    with pytest.raises(SceneError, match=f"instance {removed} was removed by update 1"):
+        request_from_run(run, removed)
