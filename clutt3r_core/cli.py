@@ -173,6 +173,8 @@ def _end_process() -> None:
 
     if any(t is not threading.main_thread() and not t.daemon and t.is_alive() for t in threading.enumerate()):
         return
+    if sys.getprofile() is not None or sys.gettrace() is not None:
+        return  # a profiler (python -m cProfile) or coverage reports after main returns: let it
     atexit._run_exitfuncs()
     for stream in (sys.stdout, sys.stderr):
         try:
