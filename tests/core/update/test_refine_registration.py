@@ -191,7 +191,8 @@ def test_the_right_side_stays_and_no_colours_change_nothing():
 
 
 @pytest.mark.parametrize("kw", [dict(registration_refine_iterations=-1), dict(registration_refine_radius=(0.005, 0.01)),
-                                dict(registration_refine_radius=(0.01, 0.0)), dict(registration_refine_keep=(-1.0, 0.01)),
+                                dict(registration_refine_radius=(0.01, 0.0)),
+                                dict(registration_refine_keep=(-1.0, 0.01)),
                                 dict(registration_flip_symmetric=(1.0, -0.05))])
 def test_a_bad_refinement_setting_is_refused_naming_it(kw):
     from clutt3r_core.errors import SceneError
