@@ -384,7 +384,8 @@ def complete_demo(out: str | Path, config: DemoConfig, story: DemoStory,
         from clutt3r_core.query import RunQuery
 
         log("describing the masks for text queries ...")
-        rq = RunQuery.open(out, backend=config.backend, scene=story.scene)
+        # the story queries the scene as segmented: the object it names is the one the update then removes
+        rq = RunQuery.open(out, backend=config.backend, scene=story.scene, step=0)
     except (Clutt3rError, ImportError) as e:
         notes.append(f"no text query: {e}")
     stage("query evidence", t)

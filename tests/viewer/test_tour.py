@@ -39,7 +39,12 @@ def test_the_demo_tells_the_whole_story(demo_run):
     assert s.grasp_target == q.target and s.n_grasps > 0 and (demo_run / "grasps.npz").is_file()
     from clutt3r_core.query import RunQuery
 
-    assert RunQuery.open(demo_run).query(q.text).target == q.target  # the run's own query agrees
+    # the run's own query agrees, on the scene as segmented (the story queries before the grasp) ...
+    assert RunQuery.open(demo_run, step=0).query(q.text).target == q.target
+    # ... and after the update the object it took away is no longer ranked (the scene now)
+    if q.target in s.removed:
+        after = RunQuery.open(demo_run).query(q.text)
+        assert after.step == 1 and after.target != q.target and np.isnan(after.scores[q.target])
 
 
 def test_a_second_demo_reads_the_run_back(demo_run):
