@@ -27,9 +27,9 @@ Runs after the association (associate.py) when the post-interaction view has dep
 4. Moved instances still without a fit are registered to the unexplained depth regions
    (``search_unexplained``, ``_search_regions``), then to pairs of unassigned masks that an
    occluder split (``search_mask_pairs``, ``_search_mask_pairs``), with the same tests.
-5. Every fit also needs evidence that the object is there (``_Evidence``, session 7): a target
-   on the support plane must look like the object, not the table (``fit_plane_colour``); a
-   mask owned by an in-place instance, or a region continuing one, must look more like the
+5. Every fit also needs evidence that the object is there (``depth_evidence.FitEvidence``,
+   session 7): a target on the support plane must look like the object, not the table
+   (``fit_plane_colour``); a mask owned by an in-place instance, or a region continuing one, must look more like the
    fitted instance than like it (``fit_owner_appearance``). Moved instances still without a fit
    that touch a fitted one share its motion when the free-space test agrees (``carry_contact``:
    segmentation fragments of one object); the others are removed.
@@ -49,6 +49,7 @@ from clutt3r_core.update.associate import Association, project_depth
 from clutt3r_core.update.depth import (PlaceCheck, Registration, _consistency, _on_or_in_front, explained_pixels,
                                        mask_points, place_check, prepare_model, register, start_rotations,
                                        support_plane, unexplained_regions)
+from clutt3r_core.update.depth_evidence import FitEvidence
 from clutt3r_core.update.depth_refine import flip_check, refined_registration
 from clutt3r_core.update.project import mask_iou, silhouette
 from clutt3r_core.update.types import LOSS_NAMES, PoseResult, PoseTrace, UpdateConfig
@@ -182,7 +183,7 @@ def depth_changes(state, view: View, config: UpdateConfig, assoc: Association, s
     refused: dict = {}
     support = cache(lambda: plane() if plane is not None else support_plane(
         state.points[state.instance < 0], state.points[state.instance >= 0], cc.in_place_tol))
-    evidence = _Evidence(state, view, config, assoc, in_place, support, refused, embed)
+    evidence = FitEvidence(state, view, config, assoc, in_place, support, refused, embed)
     taken: list[np.ndarray] = []  # moved points of the accepted fits (ChangeConfig.max_fit_overlap)
     in_place_tree = cKDTree(state.points[np.isin(state.instance, stay)]) if len(stay) else None
 
@@ -247,91 +248,6 @@ def _carry_fragments(state, view: View, config: UpdateConfig, left: list[int], f
             fits[k] = Fit(f.mask_index, f.registration, f.iou, f.region, f.pair, carried_by=j)
 
 
-class _Evidence:
-    """The evidence a fit that passed the ``accept_*`` tests still needs (ours, session 7):
-    ``__call__(k, registration, target points, mask index or -1, target pixels)`` is False
-    when the fit is refused (the reason goes into ``refused[k]``).
-
-    - ``ChangeConfig.fit_plane_colour``: a target standing on the support plane (its 95th
-      height percentile under ``in_place_tol``) must look like the instance more than like the
-      support (the depth cannot tell a flat object from the table).
-    - ``ChangeConfig.fit_owner_appearance``: a mask the association gave to an in-place
-      instance must look more like the fitted instance than like that one (S_semantic); a
-      target without a mask (an unexplained region, a pair of masks) must look more like the
-      fitted instance than like the in-place instance nearest to its depth points (the one
-      whose surface it would continue), by ``embed`` (the association's embedder), when given."""
-
-    def __init__(self, state, view: View, config: UpdateConfig, assoc: Association, in_place: set, support,
-                 refused: dict, embed=None) -> None:
-        self.state, self.view, self.cc, self.support, self.refused = state, view, config.change, support, refused
-        self.in_place = in_place
-        self.col = {int(k): i for i, k in enumerate(assoc.instance_ids)}
-        self.owner = {int(mi): int(k) for k, mi in zip(assoc.instance_ids, assoc.mask_index) if mi >= 0}
-        self.s_sem = assoc.s_semantic
-        self.embed = embed
-        ip = np.isin(state.instance, np.array(sorted(in_place), np.int32))
-        self._ip = cache(lambda: (cKDTree(state.points[ip]), state.instance[ip]) if ip.any() else None)
-        self._bg = cache(lambda: (state.points[state.instance < 0].astype(np.float64),
-                                  state.colors[state.instance < 0].astype(np.float64)))
-
-    def __call__(self, k: int, reg: Registration, pts: np.ndarray, mask_index: int,
-                 pixels: np.ndarray | None = None) -> bool:
-        cc = self.cc
-        if cc.fit_owner_appearance and mask_index < 0 and pixels is not None and not self._neighbour_ok(k, pts, pixels):
-            self.refused[k] = "neighbour-appearance"
-            return False
-        if cc.fit_owner_appearance and mask_index >= 0 and not self._owner_ok(k, mask_index):
-            self.refused[k] = "owner-appearance"
-            return False
-        if cc.fit_plane_colour and not self._plane_colour_ok(k, reg, pts):
-            self.refused[k] = "plane-colour"
-            return False
-        return True
-
-    def _neighbour_ok(self, k: int, pts: np.ndarray, pixels: np.ndarray) -> bool:
-        near = self._ip()
-        if self.embed is None or near is None or not len(pts):
-            return True
-        tree, lab = near
-        j = int(np.bincount(lab[tree.query(pts)[1]] - lab.min()).argmax() + lab.min())
-        e = np.asarray(self.embed(pixels[None]), np.float32)[0]
-        E = np.asarray(self.state.embeddings, np.float32)
-        return float(e @ E[self.col[k]]) >= float(e @ E[self.col[j]])
-
-    def _owner_ok(self, k: int, mi: int) -> bool:
-        j = self.owner.get(mi)
-        if j is None or j == k or j not in self.in_place:
-            return True
-        a, b = float(self.s_sem[mi, self.col[k]]), float(self.s_sem[mi, self.col[j]])
-        # S_semantic is computed for the masks that reached the semantic stage only (NaN else)
-        return not (np.isfinite(a) and np.isfinite(b)) or a >= b
-
-    def _plane_colour_ok(self, k: int, reg: Registration, pts: np.ndarray) -> bool:
-        view, cc = self.view, self.cc
-        plane = self.support()
-        if plane is None or view.rgb is None or not len(pts):
-            return True
-        if np.percentile(pts @ plane[:3] + plane[3], 95) >= cc.in_place_tol:
-            return True  # stands above the support: the depth tells object from table
-        sel = self.state.instance == k
-        T = reg.T_world
-        uv, on, _ = _on_or_in_front(self.state.points[sel].astype(np.float64) @ T[:3, :3].T + T[:3, 3],
-                                    view.camera, view.depth, cc.in_place_tol)
-        if not on.any():
-            return False
-        H, W = view.depth.shape
-        u = np.clip(np.round(uv[on, 0]).astype(np.int64), 0, W - 1)
-        v = np.clip(np.round(uv[on, 1]).astype(np.int64), 0, H - 1)
-        img = view.rgb[v, u].astype(np.float64)
-        bg, bg_col = self._bg()
-        if not len(bg):
-            return True
-        near = np.linalg.norm(bg - pts.mean(axis=0), axis=1) <= cc.support_colour_radius
-        table = np.median(bg_col[near] if near.any() else bg_col, axis=0)
-        obj = self.state.colors[sel][on].astype(np.float64)
-        return float(np.abs(img - obj).mean()) < float(np.abs(img - table).mean())
-
-
 def _search_mask_pairs(state, view: View, config: UpdateConfig, left: list[int], cands: list, fits: dict,
                        taken: list[np.ndarray], occ, starts: np.ndarray, overlap, evidence=None) -> int:
     """``ChangeConfig.search_mask_pairs``: register the moved instances that no single mask
@@ -372,9 +288,9 @@ def _take_fits(state, found: list, key, takes, make_fit, fits: dict, taken: list
     ``_register_all``) greedily in ``key`` order: one fit per instance, none on a mask or region
     an accepted fit took (``takes(target index)``: the set of ids it takes), none whose moved
     points lie on an accepted fit's (``taken``, ``ChangeConfig.max_fit_overlap``) or that
-    ``reject(k, moved points)``, nor one that ``evidence(k, target index, registration)`` (the
-    depth_changes' ``_Evidence``) refuses. Accepted fits go into ``fits`` (``make_fit(target index,
-    registration, IoU)``) and their moved points into ``taken``. Returns the ids taken."""
+    ``reject(k, moved points)``, nor one that ``evidence(k, target index, registration)`` (a
+    ``depth_evidence.FitEvidence``) refuses. Accepted fits go into ``fits`` (``make_fit(target
+    index, registration, IoU)``) and their moved points into ``taken``. Returns the ids taken."""
     used_k, used = set(), set()
     for _, k, ti, reg, iou in sorted(found, key=key):
         t = takes(ti)

@@ -1,6 +1,6 @@
 """A registration accepted for an object that was removed (issue 10, session 7; docs/update.md
 "Session 7: removed objects"): the evidence a fit needs beyond the ``accept_*`` tests
-(``depth_change._Evidence``).
+(``depth_evidence.FitEvidence``).
 
 - ``ChangeConfig.fit_plane_colour``: a grasped object's instance must not fit a mask of bare
   table (any flat object fits a flat patch at fitness and consistency 1.0; the depth cannot
@@ -25,7 +25,7 @@ from hypothesis import strategies as st_
 from clutt3r_core.scene import MaskCandidates
 from clutt3r_core.update.associate import Association
 from clutt3r_core.update.depth import mask_points, support_plane
-from clutt3r_core.update.depth_change import _Evidence
+from clutt3r_core.update.depth_evidence import FitEvidence
 from clutt3r_core.update.project import render_labels
 from clutt3r_core.update.types import ChangeConfig, UpdateConfig
 from clutt3r_core.update.update import UpdateDetails, update_scene
@@ -99,7 +99,7 @@ def _evidence(st, v, in_place=frozenset({0, 1}), owner_mask=None, s_sem=None, em
                         np.zeros((M, len(ids)), np.float32),
                         s_sem if s_sem is not None else np.full((M, len(ids)), np.nan, np.float32))
     plane = support_plane(st.points[st.instance < 0], st.points[st.instance >= 0], 0.01)
-    return _Evidence(st, v, UpdateConfig(), assoc, set(in_place), lambda: plane,
+    return FitEvidence(st, v, UpdateConfig(), assoc, set(in_place), lambda: plane,
                      {} if refused is None else refused, embed)
 
 
