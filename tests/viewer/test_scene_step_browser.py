@@ -72,7 +72,8 @@ def test_an_added_instance_is_in_every_view(browser, chain_app, artifacts):  # n
     slider.focus()
     page.keyboard.press("ArrowRight")
     _wait(lambda: sess.scene_step() == 1, what="the scene after update 1")
-    assert page.get_by_text(f"1 · frame 8: removed I2; displaced I0 (5.0 cm, 0°); new I{k}").count() >= 1
+    # the page redraws after the session state changed: wait for the text, do not sample it once
+    page.get_by_text(f"1 · frame 8: removed I2; displaced I0 (5.0 cm, 0°); new I{k}").first.wait_for(timeout=20_000)
     _wait(lambda: scene.added is not None, what="the added instance drawn")
     np.testing.assert_allclose(np.asarray(scene.added.points, np.float64) + d.centre, pts, atol=2e-3)
     # in another colour mode too: back to rgb (choosing an update shows the "update" colours)
@@ -95,7 +96,7 @@ def test_an_added_instance_is_in_every_view(browser, chain_app, artifacts):  # n
     page.screenshot(path=str(artifacts / "viewer_scene_step_selected.png"))
     yellow = (shot[..., 0] > 200) & (shot[..., 1] > 170) & (shot[..., 2] < 90)
     assert yellow.mean() > 0.001, "the selected added instance is not highlighted on the canvas"
-    assert page.get_by_text("new (frame 8)").count() >= 1  # the instance table says what it is
+    page.get_by_text("new (frame 8)").first.wait_for(timeout=20_000)  # the instance table says what it is
 
     # the Grasps tab follows the selection and plans on the updated scene
     _tab(page, "Grasps")
@@ -113,7 +114,7 @@ def test_an_added_instance_is_in_every_view(browser, chain_app, artifacts):  # n
     box.press("Enter")
     _wait(lambda: sess.state.query == "orange" and sess.state.query_best >= 0, what="query")
     assert sess.state.query_best == k and np.isnan(sess.state.query_scores[2])  # removed: not ranked
-    assert page.get_by_text(f"→ I{k}").count() >= 1
+    page.get_by_text(f"→ I{k}").first.wait_for(timeout=20_000)  # the panel shows the target
 
     # the pose replay moves it during update 2, in the scene before update 2
     _tab(page, "Replay")
