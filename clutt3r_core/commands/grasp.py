@@ -106,6 +106,8 @@ def grasp_command(
     if step > 0:
         sa = scene_now(run, step, seg, scene)
         sa.check_present(instance)  # a removed instance: names the update that removed it
+        if sa.stale:  # corrections made after the updates: their ids are the older labelling's
+            notes.append(sa.stale)
         voxel = float(getattr(getattr(seg.trace.config, "pointcloud", None), "voxel_size", 0.005))
         console.print(f"{sa.label}: collision check against the updated cloud (the initial depth views no longer "
                       "show the scene)")

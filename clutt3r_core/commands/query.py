@@ -84,6 +84,8 @@ def query_command(
     parse_query(text)  # an empty query fails before any model loads
     rq = RunQuery.open(run, backend=backend, scene=scene, progress=True, step=step)
     res = rq.query(text)
+    if rq.scene is not None and rq.scene.stale:  # corrections after the updates: say so (stderr, also --json)
+        Console(stderr=True, soft_wrap=True).print(escape(rq.scene.stale), style="yellow")
     write_target(Path(run), rq.scene if rq.scene is not None else rq.seg, res)
     total = time.perf_counter() - t0
     if json:

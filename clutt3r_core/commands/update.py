@@ -24,11 +24,15 @@ def update_command(
     config: UpdateConfig = UpdateConfig(),
     embedder: str = "run",
     overlay: bool = True,
+    recompute: bool = False,
 ) -> None:
     """Update the scene state from one post-interaction image and write update.json.
 
     The update starts from the last state of RUN's chain (RUN/updates/*), so running frame 8
     then frame 9 chains the two updates; RUN may also be a state folder to start from.
+    Step 0 is the run's labelling after its corrections (the viewer's Edit tab; the ids are
+    the corrected ids). A chain computed before later corrections is stale: refused, with the
+    way out (``--recompute``).
 
     Args:
         run: run folder (from ``clutt3r segment``) or an update state folder.
@@ -47,6 +51,8 @@ def update_command(
             stored instances are re-embedded from the run's views when needed (cached in
             RUN/query_cache.npz); the name is recorded in update.json and state.json.
         overlay: also write overlay.png (before | after on the new image).
+        recompute: start a new chain from the run's current (corrected) labelling: the existing
+            RUN/updates is moved aside to RUN/updates.stale-YYYYmmdd-HHMMSS (nothing deleted).
     """
     from rich.console import Console
 
@@ -57,12 +63,27 @@ def update_command(
     console = Console(stderr=True)
     if (frame is None) == (image is None):
         raise SystemExit("clutt3r update: give exactly one of --frame F or --image PATH (with --masks and --camera)")
+    from clutt3r_core.update.run_labels import stale_note
+
+    if recompute:
+        if (run / "state.json").is_file():
+            raise SystemExit("clutt3r update: --recompute takes the run folder, not a state folder")
+        if (run / "updates").is_dir():
+            import time
+
+            aside = run / f"updates.stale-{time.strftime('%Y%m%d-%H%M%S')}"
+            (run / "updates").rename(aside)
+            console.print(f"moved the previous update chain to {aside} (kept); starting from the run's labelling")
     if (run / "state.json").is_file():
         state, parent = load_state(run), run
         run_dir = state.run if state.run is not None else run.parent.parent
     else:
         run_dir = run
         state, parent = latest_state(run)
+    note = stale_note(run_dir)
+    if note is not None:
+        # extending it would mix two labellings' ids in one chain
+        raise Clutt3rError(note.replace("--frame F", f"--frame {frame}" if frame is not None else "--frame F"))
     if image is not None:
         if masks is None or camera is None:
             raise SystemExit("clutt3r update: --image needs --masks DIR and --camera FILE")

@@ -13,6 +13,11 @@ moved by their composed motions (normals turned with them), plus the added insta
 towards the camera of the update that added them (``eyes``; else towards +z above the
 object, the viewer's fallback). Step 0 is the run as segmented, unchanged.
 
+Corrections (session 7): at step > 0 the run's points carry the labelling the chain was
+computed from (``state.json`` "labels": the Edit tab's corrections replayed to that log entry,
+``update.run_labels``), so the ids agree with update.json; ``stale`` says when corrections made
+since then are not in it.
+
 ``compose_motions`` is the one place motions of a chain compose (``pose_new = T_world @
 pose_old``); the viewer's ``update_motions`` calls it.
 """
@@ -92,6 +97,8 @@ class SceneAfter:
         motions: (I, 4, 4) float64 composed world motion of every id of the chain (identity =
             never moved); ``motions[k] @ pose_at_segmentation`` is instance k's pose now.
         run: the run folder (None in memory).
+        stale: one line when corrections were made after the chain was computed (its ids are
+            the older labelling's; ``update.run_labels.stale_note``), else None.
     """
 
     step: int
@@ -107,6 +114,7 @@ class SceneAfter:
     displaced: tuple[int, ...] = ()
     motions: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4)))
     run: Path | None = None
+    stale: str | None = None
 
     def __post_init__(self) -> None:
         n = len(self.points)
@@ -219,13 +227,30 @@ def scene_after(run_dir: str | Path, step: int | None = None, seg=None,
     hist = st.history[:step]
     if len(hist) != step:
         raise SceneFileError(dirs[step - 1] / "state.json", f"history has {len(hist)} updates, expected {step}")
+    stale = None
+    n_run = seg.num_instances
+    ids0 = np.arange(n_run)
+    if st.labels is not None and st.labels.entries > 0:
+        from clutt3r_core.update.run_labels import run_labels, stale_note
+
+        lab = run_labels(run_dir, seg, entries=st.labels.entries)  # the labelling the chain was computed from
+        if lab.source.labels_sha256 != st.labels.labels_sha256:
+            raise SceneFileError(run_dir / "corrections" / "ops.jsonl",
+                                 f"replaying its first {st.labels.entries} entries does not give the labels "
+                                 f"{dirs[0].name} was computed from (the log was rewritten?)")
+        inst0, n_run, ids0 = lab.instance, lab.num_ids, lab.ids
+        stale = stale_note(run_dir, seg)
+    elif (run_dir / "corrections" / "ops.jsonl").is_file():
+        from clutt3r_core.update.run_labels import stale_note
+
+        stale = stale_note(run_dir, seg)
     removed = {k: (h.step, h.frame) for h in hist for k in h.removed}
     added_at = {k: (h.step, h.frame) for h in hist for k in h.added}
-    n_ids = max(seg.num_instances, 1 + max(added_at, default=-1))
+    n_ids = max(n_run, 1 + max(added_at, default=-1))
     M = compose_motions([zip(h.displaced, h.T_world) for h in hist], n_ids)[step]
     keep = ~np.isin(inst0, list(removed)) | (inst0 < 0)
     pts, nrm = pts0.copy(), nrm0.copy()
-    for k in np.flatnonzero(np.any(M[: seg.num_instances] != np.eye(4), axis=(1, 2))):
+    for k in np.flatnonzero(np.any(M[:n_run] != np.eye(4), axis=(1, 2))):
         sel = inst0 == k
         pts[sel] = pts[sel] @ M[k, :3, :3].T + M[k, :3, 3]
         nrm[sel] = nrm[sel] @ M[k, :3, :3].T
@@ -243,7 +268,7 @@ def scene_after(run_dir: str | Path, step: int | None = None, seg=None,
         C.append(st.colors[sel])
         N.append(oriented_normals(p, eye))
         I.append(np.full(len(p), k, np.int32))
-    present = np.setdiff1d(np.union1d(np.arange(seg.num_instances), list(added)), list(removed)).astype(np.int32)
+    present = np.setdiff1d(np.union1d(ids0, list(added)), list(removed)).astype(np.int32)
     moved = sorted({k for h in hist for k in h.displaced} & set(present.tolist()))
     return SceneAfter(step, len(dirs), hist[-1].frame, np.concatenate(P), np.concatenate(C), np.concatenate(N),
-                      np.concatenate(I), present, removed, added, tuple(moved), M, run_dir)
+                      np.concatenate(I), present, removed, added, tuple(moved), M, run_dir, stale)

@@ -19,18 +19,24 @@ On disk (``save_state``), one folder per update, by default under the run::
 
 ``latest_state(run)`` returns the last state of the chain (the run itself at step 0), so
 ``clutt3r update RUN --frame 8`` then ``--frame 9`` chains.
+
+Corrections (session 7, ``run_labels``): ``state_from_run`` starts from the run's labelling
+after its correction log (the Edit tab's merges, splits, deletes), so the ids are the corrected
+ids; ``state.json`` "labels" records which log state it was (``LabelSource``), and update.json
+a "corrections" object when the log had entries.
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from clutt3r_core.errors import SceneError, SceneFileError
 from clutt3r_core.io.images import atomic_write_bytes, atomic_write_npz
+from clutt3r_core.update.run_labels import LabelSource, RunLabels
 from clutt3r_core.update.types import LOSS_NAMES, PoseTrace, UpdateResult
 
 __all__ = [
@@ -106,6 +112,8 @@ class SceneState:
         step: 0 for the run itself, n after n updates.
         history: the updates that led here, in order.
         run: the run folder the chain started from (None for an in-memory state).
+        labels: the labelling step 0 was built from (corrections, ``run_labels``); None = the
+            segmentation as given (in-memory states, chains written before session 7).
     """
 
     points: np.ndarray
@@ -118,6 +126,7 @@ class SceneState:
     step: int = 0
     history: tuple[HistoryEntry, ...] = ()
     run: Path | None = None
+    labels: LabelSource | None = None
 
     def __post_init__(self) -> None:
         p = np.asarray(self.points, np.float32)
@@ -149,10 +158,17 @@ class SceneState:
 
 
 def state_from_segmentation(seg, voxel_size: float = 0.005, run: Path | None = None,
-                            instance_embeddings: np.ndarray | None = None) -> SceneState:
+                            instance_embeddings: np.ndarray | None = None,
+                            labels: RunLabels | None = None) -> SceneState:
     """Step 0 of a run: its cloud, with instance embeddings = normalised mean of the
     instance's masks' embeddings (``seg.trace.embeddings``), or ``instance_embeddings``
-    (K, D) when given (e.g. multi-view instance embeddings of a language backend)."""
+    (K, D) when given (e.g. multi-view instance embeddings of a language backend).
+
+    ``labels``: a corrected labelling of the run (``run_labels``); the state then carries its
+    ids and each corrected instance's embedding is the point-weighted mean of the (unit) embeddings
+    of the run instances its points came from (a merge averages its parts, a split-off part
+    inherits its source's; one made only of background points gets a zero embedding, which
+    matches no mask semantically)."""
     k = seg.num_instances
     if instance_embeddings is not None:
         emb = np.asarray(instance_embeddings, np.float32)
@@ -174,19 +190,39 @@ def state_from_segmentation(seg, voxel_size: float = 0.005, run: Path | None = N
     # their instance (it reads the run's points).
     surface = seg.trace.surface  # Trace.surface: None with the voxel-mean fusion and in older traces
     n = len(seg.points) - (surface.rim if surface is not None else 0)
-    return SceneState(points=seg.points[:n], colors=seg.colors[:n], instance=seg.instance[:n],
-                      instance_ids=np.arange(k, dtype=np.int32), embeddings=emb,
-                      embedder=seg.trace.embedder, voxel_size=voxel_size, run=run)
+    if labels is None:
+        return SceneState(points=seg.points[:n], colors=seg.colors[:n], instance=seg.instance[:n],
+                          instance_ids=np.arange(k, dtype=np.int32), embeddings=emb,
+                          embedder=seg.trace.embedder, voxel_size=voxel_size, run=run)
+    if len(labels.instance) != len(seg.points):
+        raise SceneError(f"corrected labels have {len(labels.instance)} points, the run {len(seg.points)}")
+    inst = labels.instance[:n]
+    ids = np.unique(inst[inst >= 0]).astype(np.int32)  # rim-only instances have no point here
+    # weights[c, b] = points of corrected instance c that run instance b had
+    both = (inst >= 0) & (seg.instance[:n] >= 0)
+    w = np.zeros((labels.num_ids, k), np.float64)
+    np.add.at(w, (inst[both], seg.instance[:n][both]), 1.0)
+    cemb = (w[ids] @ emb).astype(np.float32)
+    norm = np.linalg.norm(cemb, axis=1, keepdims=True)
+    cemb = np.divide(cemb, norm, out=np.zeros_like(cemb), where=norm > 0)
+    return SceneState(points=seg.points[:n], colors=seg.colors[:n], instance=inst, instance_ids=ids,
+                      embeddings=cemb, embedder=seg.trace.embedder, voxel_size=voxel_size, run=run,
+                      labels=labels.source)
 
 
 def state_from_run(run_dir: str | Path) -> SceneState:
-    """Step 0 of a saved run folder."""
+    """Step 0 of a saved run folder: its labelling after the corrections in effect in its log
+    (``run_labels``; the run as segmented when it has none). ``state.labels`` records which."""
     from clutt3r_core.runs import load_run
+    from clutt3r_core.update.run_labels import run_labels
 
     run_dir = Path(run_dir)
     seg = load_run(run_dir)
     voxel = float(getattr(getattr(seg.trace.config, "pointcloud", None), "voxel_size", 0.005))
-    return state_from_segmentation(seg, voxel_size=voxel, run=run_dir)
+    labels = run_labels(run_dir, seg)
+    if labels.source.entries == 0:  # no log: exactly the state it always was, recorded as such
+        return replace(state_from_segmentation(seg, voxel_size=voxel, run=run_dir), labels=labels.source)
+    return state_from_segmentation(seg, voxel_size=voxel, run=run_dir, labels=labels)
 
 
 def moved_points(state: SceneState, motions: dict[int, np.ndarray]) -> np.ndarray:
@@ -232,7 +268,7 @@ def apply_update(state: SceneState, result: UpdateResult) -> SceneState:
         instance_ids=np.concatenate([state.instance_ids[keep_ids], np.array([a.instance for a in added], np.int32)]),
         embeddings=np.concatenate([state.embeddings[keep_ids], emb_new]),
         embedder=state.embedder, voxel_size=state.voxel_size, step=state.step + 1,
-        history=state.history + (entry,), run=state.run,
+        history=state.history + (entry,), run=state.run, labels=state.labels,
     )
 
 
@@ -267,11 +303,15 @@ def save_state(state: SceneState, folder: str | Path, result: UpdateResult | Non
         "run": None if state.run is None else str(Path(state.run).resolve()),
         "parent": None if parent is None else str(Path(parent).resolve()),
         "history": [h.to_json() for h in state.history],
+        "labels": None if state.labels is None else state.labels.to_json(),
     }
     atomic_write_bytes(folder / "state.json", json.dumps(meta, indent=1).encode())
     if result is not None:
         # the embedder that associated (issue 10 schema + this field): S_semantic depends on it
         doc = {**result.to_json(), "embedder": state.embedder}
+        if state.labels is not None and state.labels.entries > 0:
+            # its ids are the corrected ones (docs/update.md, session 7); absent = the run as segmented
+            doc["corrections"] = state.labels.to_json()
         atomic_write_bytes(folder / "update.json", json.dumps(doc, indent=1).encode())
         arrays = {}
         for r in result.instances:
@@ -322,6 +362,7 @@ def load_state(folder: str | Path) -> SceneState:
         embeddings=z["embeddings"], embedder=meta["embedder"], voxel_size=float(meta["voxel_size"]),
         step=int(meta["step"]), history=tuple(HistoryEntry.from_json(h) for h in meta["history"]),
         run=None if meta.get("run") is None else Path(meta["run"]),
+        labels=LabelSource.from_json(meta["labels"]) if meta.get("labels") else None,
     )
 
 

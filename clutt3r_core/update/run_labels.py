@@ -1,0 +1,201 @@
+"""The labelling an update chain starts from: the run's instances with the user's corrections.
+
+The viewer's Edit tab writes corrections (merge, split, delete, relabel, category) to the run's
+append-only log (``clutt3r_core.annotations``, docs/corrections.md). The update's step 0
+(``state.state_from_run``) takes the labelling after the log's edits in effect, so an update
+after a grasp acts on the instances the user fixed. Its ids are the CORRECTED ids, the ones the
+Edit tab shows: a merged id is gone (its points are in the id it joined), a deleted id is gone
+(its points are background, -1), a split-off instance has the id the Edit tab gave it (the
+number of instances at that time). No renumbering: ``CorrectedLabels.compact`` is for export.
+
+Each state records the labelling it came from (``LabelSource``: log entries replayed, edits in
+effect, SHA-256 of the (N,) int32 instance array). The log is append-only, so the labelling of
+an older record can be rebuilt exactly by replaying the first ``entries`` entries (the hash
+checks it). A correction made after the updates were computed makes the chain stale:
+``stale_note`` says so in one line; ``clutt3r update`` refuses to extend a stale chain
+(``--recompute`` moves it aside first, never deletes it).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from clutt3r_core.errors import SceneError, SceneFileError
+
+__all__ = ["LabelSource", "RunLabels", "run_labels", "labels_sha256", "chain_source", "stale_note", "LOG_NAME"]
+
+LOG_NAME = "corrections/ops.jsonl"
+
+
+def labels_sha256(instance: np.ndarray) -> str:
+    """SHA-256 (hex) of an (N,) instance array as little-endian int32 (the labelling's identity)."""
+    return hashlib.sha256(np.ascontiguousarray(instance, dtype="<i4").tobytes()).hexdigest()
+
+
+@dataclass(frozen=True)
+class LabelSource:
+    """Which labelling a chain's step 0 was built from (``state.json`` "labels").
+
+    Attributes:
+        entries: correction log entries replayed (0: no log, the run as segmented).
+        active_edits: edits in effect after those entries (undone ones excluded).
+        labels_sha256: ``labels_sha256`` of the resulting (N,) instance array over the run's points.
+        categories: (id, text) of the instances named in the Edit tab, ascending ids.
+    """
+
+    entries: int
+    active_edits: int
+    labels_sha256: str
+    categories: tuple[tuple[int, str], ...] = ()
+
+    @property
+    def corrected(self) -> bool:
+        return self.active_edits > 0
+
+    def describe(self) -> str:
+        if self.entries == 0:
+            return "the run as segmented (no corrections)"
+        return f"correction log entry {self.entries} ({self.active_edits} edit(s) in effect)"
+
+    def to_json(self) -> dict:
+        return {"log": LOG_NAME, "entries": self.entries, "active_edits": self.active_edits,
+                "labels_sha256": self.labels_sha256, "categories": {str(k): t for k, t in self.categories}}
+
+    @staticmethod
+    def from_json(d: dict) -> "LabelSource":
+        cats = tuple(sorted((int(k), str(t)) for k, t in (d.get("categories") or {}).items()))
+        return LabelSource(int(d["entries"]), int(d["active_edits"]), str(d["labels_sha256"]), cats)
+
+
+@dataclass(frozen=True, eq=False)
+class RunLabels:
+    """A run's labelling after some corrections.
+
+    Attributes:
+        instance: (N,) int32 instance id per run point (the run's whole cloud), -1 = none.
+        ids: (K,) int32 ids that are not deleted and have points, ascending.
+        num_ids: ids ever used (deleted and split ones included); new ids start here.
+        source: where it came from.
+    """
+
+    instance: np.ndarray
+    ids: np.ndarray
+    num_ids: int
+    source: LabelSource
+
+    def __post_init__(self) -> None:
+        inst = np.asarray(self.instance, np.int32)
+        if inst.ndim != 1:
+            raise SceneError(f"RunLabels.instance must be (N,), got {inst.shape}")
+        ids = np.asarray(self.ids, np.int32)
+        if len(inst) and inst.max(initial=-1) >= self.num_ids:
+            raise SceneError("RunLabels: instance ids beyond num_ids")
+        for name, a in (("instance", inst), ("ids", ids)):
+            a = np.ascontiguousarray(a)
+            a.setflags(write=False)
+            object.__setattr__(self, name, a)
+
+
+def _base_instance(run_dir: Path, seg) -> np.ndarray:
+    if seg is not None:
+        return np.asarray(seg.instance, np.int32)
+    p = run_dir / "instances.npz"
+    try:
+        with np.load(p) as z:
+            return z["instance"].astype(np.int32)
+    except (OSError, ValueError, KeyError) as e:
+        raise SceneFileError(p, f"unreadable run labels: {e}") from None
+
+
+def run_labels(run_dir: str | Path, seg=None, entries: int | None = None) -> RunLabels:
+    """The run's labelling after its correction log's first ``entries`` entries (None: all).
+
+    ``seg``: the run's Segmentation when already loaded (else instances.npz / cloud.npz are read).
+    Raises ``SceneFileError`` naming the log when it is invalid or shorter than ``entries``."""
+    run_dir = Path(run_dir)
+    log = run_dir / LOG_NAME
+    if not log.is_file():
+        if entries:
+            raise SceneFileError(log, f"is missing, but the update chain was computed after {entries} of its "
+                                      "entries (the corrections were removed?)")
+        inst = _base_instance(run_dir, seg)
+        n_ids = int(seg.num_instances) if seg is not None else int(inst.max(initial=-1)) + 1
+        ids = np.unique(inst[inst >= 0]).astype(np.int32)
+        return RunLabels(inst, ids, max(n_ids, len(ids) and int(ids[-1]) + 1), LabelSource(0, 0, labels_sha256(inst)))
+    import warnings
+
+    from clutt3r_core.annotations import Annotations, CorrectionLogWarning
+    from clutt3r_core.corrections import active_edits, apply
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CorrectionLogWarning)  # a torn last line: the editor reports it
+        ann = Annotations.open(run_dir, segmentation=seg, readonly=True)
+    ops = ann.ops
+    n = len(ops) if entries is None else int(entries)
+    if n > len(ops):
+        raise SceneFileError(log, f"has {len(ops)} entries, but the update chain was computed after {n} "
+                                  "(the log was replaced or cut?)")
+    lab = ann.current if n == len(ops) else apply(ann.base, ops[:n])
+    active = len(active_edits(ops[:n])[0])
+    counts = lab.point_counts()
+    ids = np.flatnonzero(~lab.deleted & (counts > 0)).astype(np.int32)
+    cats = tuple((int(k), lab.categories[k]) for k in ids if lab.categories[k])
+    return RunLabels(lab.instance, ids, lab.num_instances, LabelSource(n, active, labels_sha256(lab.instance), cats))
+
+
+def chain_source(run_dir: str | Path) -> tuple[Path, LabelSource | None] | None:
+    """(first state folder, the labelling it records) of the run's update chain; None without a
+    chain. The record is None for states written before session 7 or from an in-memory
+    segmentation (they used the run as segmented)."""
+    from clutt3r_core.update.state import state_dirs
+
+    dirs = state_dirs(run_dir)
+    if not dirs:
+        return None
+    p = dirs[0] / "state.json"
+    try:
+        d = json.loads(p.read_text()).get("labels")
+        return dirs[0], (LabelSource.from_json(d) if d else None)
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise SceneFileError(p, f"unreadable labels record: {e}") from None
+
+
+def _ids(a) -> str:
+    a = list(a)
+    return ", ".join(f"I{k}" for k in a[:8]) + (f" and {len(a) - 8} more" if len(a) > 8 else "")
+
+
+def stale_note(run_dir: str | Path, seg=None) -> str | None:
+    """One line when the run's update chain was computed from another labelling than the one its
+    corrections give now (corrections made after the updates); None when it is current or there
+    is no chain."""
+    run_dir = Path(run_dir)
+    rec = chain_source(run_dir)
+    if rec is None:
+        return None
+    first, then_src = rec
+    now = run_labels(run_dir, seg)
+    then_entries = then_src.entries if then_src is not None else 0
+    if then_src is not None and then_src.labels_sha256 == now.source.labels_sha256:
+        return None
+    then = run_labels(run_dir, seg, entries=then_entries)
+    if then.source.labels_sha256 == now.source.labels_sha256:
+        return None
+    gone = np.setdiff1d(then.ids, now.ids)
+    new = np.setdiff1d(now.ids, then.ids)
+    moved = int(np.count_nonzero(then.instance != now.instance))
+    what = [f"{moved} point(s) relabelled"]
+    if len(gone):
+        what.append(f"no longer instances: {_ids(gone)}")
+    if len(new):
+        what.append(f"new instances: {_ids(new)}")
+    n = len(list((run_dir / "updates").glob("*/state.json")))
+    return (f"STALE: the {n} update(s) in {run_dir / 'updates'} were computed from {then.source.describe()}; "
+            f"the corrections now give {now.source.describe()} ({'; '.join(what)}), so their instance ids are "
+            f"the old labelling's. Recompute: clutt3r update {run_dir} --frame F --recompute "
+            f"(moves {first.parent.name}/ aside to updates.stale-<time>/, deletes nothing)")

@@ -1,0 +1,180 @@
+"""User corrections carried into scene updates (session 7, ``update/run_labels.py``).
+
+A tiny generated run (``tests/core/_tiny_run``) is corrected through the correction log's API (what
+the viewer's Edit tab calls), then updated through ``clutt3r update RUN --image ...`` with one of the
+scene's own views as the post-interaction image (nothing moved): the update's ids must be the
+corrected ids, a correction made after an update must make the chain stale (refused, with the way
+out), and a run without corrections must give exactly what it gave before.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from clutt3r_core.annotations import Annotations, Delete, Merge, SetCategory, Split
+from clutt3r_core.commands.update import update_command
+from clutt3r_core.errors import Clutt3rError
+from clutt3r_core.io.images import write_png
+from clutt3r_core.runs import save_run
+from clutt3r_core.update.run_labels import run_labels, stale_note
+from clutt3r_core.update.scene_after import scene_after
+from clutt3r_core.update.state import latest_state, save_state, state_from_run, state_from_segmentation
+from clutt3r_core.update.update import update_scene
+from tests.core._tiny_run import tiny_scene, tiny_segmentation
+
+from .test_update import FAST
+
+
+@pytest.fixture(scope="module")
+def base(tmp_path_factory):
+    root = tmp_path_factory.mktemp("corr")
+    seg, scene = tiny_segmentation(), tiny_scene()
+    run = save_run(seg, root / "run")
+    view = scene.initial_views[0]  # the post-interaction image: the scene unchanged
+    img = root / "post"
+    (img / "masks").mkdir(parents=True)
+    write_png(img / "post.png", view.rgb)
+    for m, i in zip(view.masks.masks, view.masks.ids):
+        write_png(img / "masks" / f"mask_000008_{i:02d}.png", m.astype(np.uint8) * 255)
+    cam = view.camera
+    (img / "cam.json").write_text(json.dumps({"K": cam.K.tolist(), "width": cam.width, "height": cam.height,
+                                              "T_world_camera": cam.T_world_camera.tolist()}))
+    return run, seg, view, img
+
+
+@pytest.fixture
+def run(base, tmp_path):
+    dst = tmp_path / "run"
+    shutil.copytree(base[0], dst)
+    return dst
+
+
+def _largest(seg, n: int) -> list[int]:
+    counts = np.bincount(seg.instance[seg.instance >= 0], minlength=seg.num_instances)
+    return [int(k) for k in np.argsort(-counts)[:n]]
+
+
+def _edit(run, seg, *ops) -> None:
+    with Annotations.open(run, segmentation=seg, author="test") as ann:
+        for op in ops:
+            ann.apply_op(op)
+
+
+def _update(run, img, **kw) -> dict:
+    update_command(run, image=img / "post.png", masks=img / "masks", camera=img / "cam.json", config=FAST,
+                   overlay=False, **kw)
+    _, folder = latest_state(run)
+    return json.loads((folder / "update.json").read_text())
+
+
+def _ids(doc) -> list[int]:
+    return [d["instance"] for d in doc["instances"]]
+
+
+def test_merge_before_the_update_reports_one_instance(run, base):
+    _, seg, _, img = base
+    a, b = _largest(seg, 2)
+    _edit(run, seg, Merge(into=a, other=b), SetCategory(a, "mug"))
+    st = state_from_run(run)
+    assert b not in st.instance_ids and a in st.instance_ids
+    assert st.labels.entries == 2 and st.labels.active_edits == 2 and dict(st.labels.categories) == {a: "mug"}
+    n_ab = int(np.isin(seg.instance[: len(st.points)], [a, b]).sum())
+    assert int((st.instance == a).sum()) == n_ab  # both fragments' points, one id
+    assert abs(float(np.linalg.norm(st.embedding_of(a))) - 1.0) < 1e-5
+    doc = _update(run, img)
+    ids = _ids(doc)
+    assert ids.count(a) == 1 and b not in ids and sorted(ids) == st.instance_ids.tolist()
+    assert doc["corrections"]["entries"] == 2 and doc["corrections"]["categories"] == {str(a): "mug"}
+    assert stale_note(run) is None  # computed from the current corrections
+
+
+def test_deleted_instance_is_never_reported(run, base):
+    _, seg, _, img = base
+    c = _largest(seg, 3)[2]
+    _edit(run, seg, Delete(c))
+    st = state_from_run(run)
+    assert c not in st.instance_ids
+    n = len(st.points)
+    assert int((st.instance == -1).sum()) == int((seg.instance[:n] == -1).sum() + (seg.instance[:n] == c).sum())
+    doc = _update(run, img)
+    assert c not in _ids(doc)
+    assert c not in scene_after(run, seg=seg).present
+
+
+def test_split_instance_gets_the_edit_tabs_id(run, base):
+    _, seg, _, _ = base
+    a = _largest(seg, 1)[0]
+    pts = np.flatnonzero(seg.instance == a)
+    half = pts[seg.points[pts, 0] < np.median(seg.points[pts, 0])]
+    _edit(run, seg, Split(points=tuple(half.tolist()), source=a))
+    lab = run_labels(run, seg)
+    k = seg.num_instances  # the Edit tab's new id: the number of ids so far
+    assert lab.num_ids == k + 1 and k in lab.ids
+    st = state_from_run(run)
+    assert k in st.instance_ids and a in st.instance_ids
+    # a split-off part inherits its source's embedding
+    np.testing.assert_allclose(st.embedding_of(k), st.embedding_of(a), atol=1e-6)
+
+
+def test_correction_after_an_update_is_flagged_stale(run, base):
+    _, seg, _, img = base
+    a, b = _largest(seg, 2)
+    doc0 = _update(run, img)
+    assert "corrections" not in doc0 and stale_note(run) is None
+    _edit(run, seg, Merge(into=a, other=b))
+    note = stale_note(run)
+    assert note is not None and "\n" not in note
+    assert note.startswith("STALE") and f"no longer instances: I{b}" in note and "--recompute" in note
+    assert "the run as segmented" in note and "correction log entry 1" in note
+    assert scene_after(run, seg=seg).stale == note  # query / grasp print it
+    with pytest.raises(Clutt3rError, match="STALE"):
+        _update(run, img)
+    before = sorted(p.name for p in (run / "updates").iterdir())
+    doc = _update(run, img, recompute=True)
+    aside = [p for p in run.iterdir() if p.name.startswith("updates.stale-")]
+    assert len(aside) == 1 and sorted(p.name for p in aside[0].iterdir()) == before  # kept, not deleted
+    assert b not in _ids(doc) and doc["corrections"]["entries"] == 1 and stale_note(run) is None
+
+
+def test_edit_then_undo_keeps_the_chain_current(run, base):
+    _, seg, _, img = base
+    a, b = _largest(seg, 2)
+    _update(run, img)
+    with Annotations.open(run, segmentation=seg, author="test") as ann:
+        ann.apply_op(Merge(into=a, other=b))
+        ann.undo()
+    assert stale_note(run) is None  # the labels are the ones the chain was computed from
+
+
+def test_state_chain_replays_the_log_it_was_computed_from(run, base):
+    """A chain computed after 1 correction, then more corrections: scene_after still uses the
+    labelling of entry 1 (the chain's ids), and says it is stale."""
+    _, seg, _, img = base
+    a, b, c = _largest(seg, 3)
+    _edit(run, seg, Merge(into=a, other=b))
+    _update(run, img)
+    sa = scene_after(run, seg=seg)
+    assert sa.stale is None and b not in sa.present and c in sa.present
+    _edit(run, seg, Delete(c))
+    sa = scene_after(run, seg=seg)
+    assert c in sa.present and sa.stale is not None and f"I{c}" in sa.stale
+
+
+def test_run_without_corrections_updates_exactly_as_before(run, base):
+    _, seg, view, img = base
+    st_new = state_from_run(run)
+    st_old = state_from_segmentation(seg, voxel_size=st_new.voxel_size, run=run)
+    for name in ("points", "colors", "instance", "instance_ids", "embeddings"):
+        np.testing.assert_array_equal(getattr(st_new, name), getattr(st_old, name))
+    assert st_new.labels.entries == 0 and st_old.labels is None
+    doc = _update(run, img)
+    res = update_scene(st_old, view.__class__(-1, view.rgb, view.camera, None, view.masks, name="post.png"), FAST)
+    old = save_state(st_old, run.parent / "old", res)
+    doc_old = json.loads((old / "update.json").read_text())
+    for d in (doc, doc_old):
+        d.pop("time_s")
+    assert doc == doc_old
