@@ -175,6 +175,7 @@ def scene_grasp_request(data, step: int, k: int, knn: int = 16):
     updated scene (a cloud-only collision check; the Grasps tab says so)."""
     from clutt3r_core.errors import SceneError
     from clutt3r_core.grasping import GraspRequest
+    from clutt3r_core.grasping.request import run_voxel_size
     from clutt3r_core.update.scene_after import oriented_normals
     from clutt3r_viewer.panels.update_sources import update_motions
 
@@ -203,4 +204,4 @@ def scene_grasp_request(data, step: int, k: int, knn: int = 16):
             target.append(np.full(len(p), a.instance == k))
     return GraspRequest(points=np.concatenate(pts).astype(np.float32), normals=np.concatenate(nrms).astype(np.float32),
                         target=np.concatenate(target), instance=int(k), views=(),
-                        voxel_size=float(getattr(getattr(seg.trace.config, "pointcloud", None), "voxel_size", 0.005)))
+                        voxel_size=run_voxel_size(seg))

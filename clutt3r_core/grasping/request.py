@@ -10,7 +10,13 @@ import numpy as np
 from clutt3r_core.errors import Clutt3rError, SceneError
 from clutt3r_core.grasping import DepthView, GraspRequest
 
-__all__ = ["request_from_segmentation", "depth_views", "run_views", "request_from_run", "scene_now"]
+__all__ = ["request_from_segmentation", "depth_views", "run_views", "request_from_run", "scene_now", "run_voxel_size"]
+
+
+def run_voxel_size(seg) -> float:
+    """The fused cloud's voxel edge of a run (metres; ``SegmentConfig.pointcloud.voxel_size``),
+    0.005 when its trace records none: the spacing a request in an updated scene declares."""
+    return float(getattr(getattr(seg.trace.config, "pointcloud", None), "voxel_size", 0.005))
 
 
 def depth_views(scene) -> tuple[DepthView, ...]:
@@ -82,8 +88,8 @@ def request_from_run(run_dir: str | Path, instance: int, scene: str | Path | Non
     seg = load_run(run_dir)
     if step > 0:
         sa = scene_now(run_dir, step, seg, scene)
-        voxel = float(getattr(getattr(seg.trace.config, "pointcloud", None), "voxel_size", 0.005))
-        return sa.grasp_request(instance, voxel_size=voxel), seg, f"{sa.label}: collision check against the updated cloud"
+        return (sa.grasp_request(instance, voxel_size=run_voxel_size(seg)), seg,
+                f"{sa.label}: collision check against the updated cloud")
     views, warn = run_views(run_dir, scene)
     return request_from_segmentation(seg, instance, views), seg, warn
 
