@@ -70,6 +70,9 @@ class UpdateFrame:
             (-1 = removed / none), or None when only the image is known.
         text: a markdown summary of what changed.
         result: the full update (statuses, change masks, pose iterations), or None.
+        instance0: (N,) int32 the chain's labelling before any update: the run's ids after the
+            corrections the chain was computed from (``update.run_labels``); None = the run as
+            segmented.
     """
 
     frame: int
@@ -78,6 +81,7 @@ class UpdateFrame:
     point_instance: np.ndarray | None = None
     text: str = ""
     result: UpdateResult | None = None
+    instance0: np.ndarray | None = None
 
 
 @runtime_checkable

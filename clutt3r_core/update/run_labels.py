@@ -27,7 +27,8 @@ import numpy as np
 
 from clutt3r_core.errors import SceneError, SceneFileError
 
-__all__ = ["LabelSource", "RunLabels", "run_labels", "labels_sha256", "chain_source", "stale_note", "LOG_NAME"]
+__all__ = ["LabelSource", "RunLabels", "run_labels", "labels_sha256", "chain_source", "labels_change", "stale_note",
+           "LOG_NAME"]
 
 LOG_NAME = "corrections/ops.jsonl"
 
@@ -170,6 +171,25 @@ def _ids(a) -> str:
     return ", ".join(f"I{k}" for k in a[:8]) + (f" and {len(a) - 8} more" if len(a) > 8 else "")
 
 
+def labels_change(then: np.ndarray, now: np.ndarray) -> str | None:
+    """What the corrections changed between two (N,) labellings of a run, in a few words
+    ("3 point(s) relabelled; no longer instances: I2; new instances: I7"), None when equal."""
+    then, now = np.asarray(then), np.asarray(now)
+    if then.shape != now.shape:
+        return f"the labelling has {len(now)} points, the chain's {len(then)}"
+    diff = then != now
+    if not diff.any():
+        return None
+    ids_then, ids_now = np.unique(then[then >= 0]), np.unique(now[now >= 0])
+    gone, new = np.setdiff1d(ids_then, ids_now), np.setdiff1d(ids_now, ids_then)
+    what = [f"{int(diff.sum())} point(s) relabelled"]
+    if len(gone):
+        what.append(f"no longer instances: {_ids(gone)}")
+    if len(new):
+        what.append(f"new instances: {_ids(new)}")
+    return "; ".join(what)
+
+
 def stale_note(run_dir: str | Path, seg=None) -> str | None:
     """One line when the run's update chain was computed from another labelling than the one its
     corrections give now (corrections made after the updates); None when it is current or there
@@ -186,16 +206,9 @@ def stale_note(run_dir: str | Path, seg=None) -> str | None:
     then = run_labels(run_dir, seg, entries=then_entries)
     if then.source.labels_sha256 == now.source.labels_sha256:
         return None
-    gone = np.setdiff1d(then.ids, now.ids)
-    new = np.setdiff1d(now.ids, then.ids)
-    moved = int(np.count_nonzero(then.instance != now.instance))
-    what = [f"{moved} point(s) relabelled"]
-    if len(gone):
-        what.append(f"no longer instances: {_ids(gone)}")
-    if len(new):
-        what.append(f"new instances: {_ids(new)}")
+    what = labels_change(then.instance, now.instance)
     n = len(list((run_dir / "updates").glob("*/state.json")))
     return (f"STALE: the {n} update(s) in {run_dir / 'updates'} were computed from {then.source.describe()}; "
-            f"the corrections now give {now.source.describe()} ({'; '.join(what)}), so their instance ids are "
+            f"the corrections now give {now.source.describe()} ({what}), so their instance ids are "
             f"the old labelling's. Recompute: clutt3r update {run_dir} --frame F --recompute "
             f"(moves {first.parent.name}/ aside to updates.stale-<time>/, deletes nothing)")

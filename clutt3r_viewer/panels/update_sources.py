@@ -18,6 +18,10 @@ Importing this module registers:
   just before) the selected update, from ``updated_scene``: instances coloured by id, the points
   of removed instances pale (ghosts, left where they were last seen). Every tab shows that scene
   (``clutt3r_viewer.scene_step``), whatever the colour layer.
+
+The chain's ids are those of the labelling it was computed from (session 7: the run's
+corrections at that time, ``update.run_labels``; ``UpdateFrame.instance0``); ``stale_text``
+says when the labels shown (the Edit tab's, now) differ from it.
 """
 
 from __future__ import annotations
@@ -40,7 +44,7 @@ from clutt3r_viewer.layers import GHOST_WHITE, ghost, register_color_layer
 from clutt3r_viewer.loading import register_update_loader
 
 __all__ = ["load_update_frames", "update_pose_events", "update_motions", "updated_scene", "updated_labels",
-           "added_points", "added_instances", "UpdateSceneLayer", "GHOST_WHITE"]
+           "added_points", "added_instances", "UpdateSceneLayer", "GHOST_WHITE", "chain_instance", "stale_text"]
 
 
 
@@ -93,7 +97,14 @@ def load_update_frames(run_dir: Path | None, scene: Scene | None) -> tuple[Updat
     dirs = state_dirs(run_dir)
     if not dirs:
         return ()
-    instance0 = np.load(Path(run_dir) / "instances.npz")["instance"]
+    from clutt3r_core.update.run_labels import chain_source, run_labels
+
+    src = chain_source(run_dir)[1]
+    if src is not None and src.entries > 0:  # the corrected labelling the chain was computed from
+        instance0 = run_labels(run_dir, entries=src.entries).instance
+    else:
+        instance0 = np.load(Path(run_dir) / "instances.npz")["instance"]
+    instance0 = np.asarray(instance0, np.int32)
     removed: set[int] = set()
     out = []
     from clutt3r_core.io.images import read_rgb
@@ -115,7 +126,7 @@ def load_update_frames(run_dir: Path | None, scene: Scene | None) -> tuple[Updat
         hw = (view.camera.height, view.camera.width) if view is not None else (rgb.shape[:2] if rgb is not None else (1, 1))
         pi = np.where(np.isin(instance0, list(removed)), -1, instance0).astype(np.int32)
         out.append(UpdateFrame(frame=frame, rgb=rgb, camera=view.camera if view else None, point_instance=pi,
-                               text=_text(doc), result=_result(d, doc, hw)))
+                               text=_text(doc), result=_result(d, doc, hw), instance0=instance0))
     return tuple(out)
 
 
@@ -239,6 +250,29 @@ def update_motions(updates, n_instances: int) -> np.ndarray:
     return compose_motions(steps, max(int(n_instances), 1 + max(ids, default=-1)))
 
 
+def chain_instance(data) -> np.ndarray:
+    """(N,) int32 the labelling the update chain of ``data`` was computed from (its ids): the
+    frames' ``instance0``, else the run as segmented."""
+    i0 = data.updates[0].instance0 if data.updates else None
+    return np.asarray(data.seg.instance if i0 is None else i0, np.int32)
+
+
+def stale_text(data, labels: np.ndarray) -> str | None:
+    """One line when ``labels`` (the run's labels now, e.g. the Edit tab's) differ from the ones
+    the update chain was computed from, else None (also without updates)."""
+    if not data.updates:
+        return None
+    from clutt3r_core.update.run_labels import labels_change
+
+    what = labels_change(chain_instance(data), labels)
+    if what is None:
+        return None
+    n = len(data.updates)
+    return (f"Stale: the {n} update(s) were computed before the corrections made since ({what}); their ids "
+            f"are the older labelling's. Recompute: clutt3r update RUN --frame F --recompute "
+            f"(moves RUN/updates aside, deletes nothing)")
+
+
 def updated_scene(data, u: int, idx: np.ndarray, after: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The run's points ``idx`` in the scene after update ``u`` of ``data.updates`` (``after=False``:
     just before it, i.e. after update u - 1; u = -1: the initial segmentation).
@@ -249,7 +283,7 @@ def updated_scene(data, u: int, idx: np.ndarray, after: bool = True) -> tuple[np
     """
     seg = data.seg
     idx = np.asarray(idx, np.int64)
-    inst0 = np.asarray(seg.instance)[idx]
+    inst0 = chain_instance(data)[idx]
     pts = np.asarray(seg.points, np.float64)[idx].copy()
     inst, gone = updated_labels(data, u, idx, after)
     n_done = u + 1 if after else u  # updates applied to the scene shown
@@ -300,7 +334,7 @@ def updated_labels(data, u: int, idx: np.ndarray, after: bool = True) -> tuple[n
     """The instance and gone arrays of ``updated_scene`` without its positions (the colour
     layer's part: the Scene panel asks ``updated_scene`` for the positions of the same points)."""
     idx = np.asarray(idx, np.int64)
-    inst0 = np.asarray(data.seg.instance)[idx]
+    inst0 = chain_instance(data)[idx]
     n_done = u + 1 if after else u
     pi = data.updates[n_done - 1].point_instance if n_done > 0 and data.updates else None
     inst = inst0.astype(np.int32) if pi is None else np.asarray(pi, np.int32)[idx]

@@ -7,7 +7,8 @@ the updates added (status "new") drawn as a second cloud by the Scene panel, col
 selectable like the others. The "After the update" checkbox switches to the scene just before
 it (after the previous update), so the two can be compared in place. The timeline lists, per
 update of the chain, what it removed, displaced (how far, how much it turned) and added; the
-step shown is marked.
+step shown is marked. When the run's labels (the Edit tab's corrections) differ from the ones
+the chain was computed from, a "Stale" line heads the timeline (``update_sources.stale_text``).
 """
 
 from __future__ import annotations
@@ -75,8 +76,15 @@ class UpdatesPanel(Panel):
         self.after = gui.add_checkbox("After the update", initial_value=s.state.update_after,
                                       hint="checked: the scene after the chosen update; unchecked: just before it")
         self.after.on_update(lambda ev: self.set_after(s, bool(self.after.value)))
-        self.timeline = gui.add_markdown(timeline_markdown(chain_steps(s.app.data), s.scene_step()))
+        self.timeline = gui.add_markdown(self._timeline(s))
         self.text = gui.add_markdown(INITIAL)
+
+    def _timeline(self, s: "Session") -> str:
+        from clutt3r_viewer.panels.update_sources import stale_text
+
+        md = timeline_markdown(chain_steps(s.app.data), s.scene_step())
+        note = stale_text(s.app.data, s.app.instance_labels())
+        return md if note is None else f"**⚠ {note}**\n\n{md}"
 
     def set_update(self, s: "Session", u: int) -> None:
         s.set_scene(int(u))
@@ -86,7 +94,7 @@ class UpdatesPanel(Panel):
         s.set_scene(s.state.update, bool(after))
 
     def refresh(self, s: "Session", change: Change) -> None:
-        if not change & (Change.COLOUR | Change.SCENE):
+        if not change & (Change.COLOUR | Change.SCENE | Change.LABELS):
             return
         ups = s.app.data.updates
         u = s.state.update
@@ -94,7 +102,7 @@ class UpdatesPanel(Panel):
             self.frame.value = u
         if bool(self.after.value) != s.state.update_after:
             self.after.value = s.state.update_after
-        self.timeline.content = timeline_markdown(chain_steps(s.app.data), s.scene_step())
+        self.timeline.content = self._timeline(s)
         if not 0 <= u < len(ups):
             self.text.content = INITIAL
             return

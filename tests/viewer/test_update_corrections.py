@@ -1,0 +1,59 @@
+"""The viewer's update chain with corrections (session 7): the chain's ids are the corrected ids it
+was computed from, and the Updates tab says when the Edit tab's labels changed since."""
+
+from __future__ import annotations
+
+import shutil
+from types import SimpleNamespace
+
+import numpy as np
+
+from clutt3r_core.annotations import Annotations, Delete, Merge
+from clutt3r_core.update.state import apply_update, save_state, state_from_run
+
+from .test_update_sources import _fake_update
+
+
+def _two(seg) -> tuple[int, int, int]:
+    counts = np.bincount(seg.instance[seg.instance >= 0], minlength=seg.num_instances)
+    a, b, c = (int(k) for k in np.argsort(-counts)[:3])
+    return a, b, c
+
+
+def test_updates_tab_follows_the_corrected_chain_and_flags_later_edits(tiny_run_dir, tiny_seg, tmp_path):
+    import clutt3r_viewer.panels.update_sources  # noqa: F401  (registers the loader)
+    from clutt3r_viewer.loading import load_viewer_data
+    from clutt3r_viewer.panels.update_sources import stale_text, updated_labels, updated_scene
+    from clutt3r_viewer.panels.updates import UpdatesPanel
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run_dir, run)
+    a, b, c = _two(tiny_seg)
+    ann = Annotations.open(run, segmentation=tiny_seg, author="test")
+    ann.apply_op(Merge(into=a, other=b))
+    s0 = state_from_run(run)  # the corrected labelling: b's points are a's
+    r1 = _fake_update(s0, 8, k=a, shift=0.05, removed=None, n_iter=3)
+    save_state(apply_update(s0, r1), run / "updates" / "01_frame_000008", r1)
+
+    d = load_viewer_data(run, images=False)
+    np.testing.assert_array_equal(d.updates[0].instance0, ann.current.instance)
+    idx = np.arange(len(tiny_seg.points))
+    was_b = tiny_seg.instance == b
+    inst, gone = updated_labels(d, 0, idx)
+    assert np.all(inst[was_b] == a) and not gone.any()
+    pts, _, _ = updated_scene(d, 0, idx)  # the merged fragment moves with the instance it joined
+    np.testing.assert_allclose(pts[was_b, 0] - tiny_seg.points[was_b, 0], 0.05, atol=1e-5)
+
+    app = SimpleNamespace(data=d, instance_labels=lambda: ann.current.instance)
+    session = SimpleNamespace(app=app, scene_step=lambda: 1)
+    assert stale_text(d, ann.current.instance) is None
+    assert "Stale" not in UpdatesPanel()._timeline(session)
+
+    ann.apply_op(Delete(c))  # an edit after the update
+    note = stale_text(d, ann.current.instance)
+    assert note is not None and "\n" not in note and f"no longer instances: I{c}" in note and "--recompute" in note
+    md = UpdatesPanel()._timeline(session)
+    assert md.startswith(f"**⚠ {note}**") and "1 · frame 8" in md
+    ann.undo()
+    assert stale_text(d, ann.current.instance) is None  # back to the chain's labels
+    ann.close()
