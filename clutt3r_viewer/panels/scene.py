@@ -8,6 +8,7 @@ import numpy as np
 
 from clutt3r_viewer.camera import frustum_scale
 from clutt3r_viewer.data import label_colors, lod_indices
+from clutt3r_viewer.edit import option_id
 from clutt3r_viewer.layers import available_layers
 from clutt3r_viewer.panels.base import Change, Panel, downscale_step
 from clutt3r_viewer.scene_step import shown_scene
@@ -17,7 +18,7 @@ if TYPE_CHECKING:
 
     from clutt3r_viewer.app import Session
 
-__all__ = ["ScenePanel", "InstancesPanel", "LOD_OPTIONS", "instance_option", "option_instance"]
+__all__ = ["ScenePanel", "InstancesPanel", "LOD_OPTIONS", "instance_option"]
 
 LOD_OPTIONS = {"50k": 50_000, "200k": 200_000, "1M": 1_000_000, "all": 0}
 _THUMB_MAX_WIDTH = 160  # frustum thumbnails: small, they are only a visual cue
@@ -196,7 +197,7 @@ class InstancesPanel(Panel):
     def build(self, s: "Session") -> None:
         self.select = s.client.gui.add_dropdown("Instance", self.options(s), initial_value=NO_INSTANCE,
                                                 hint="highlight an instance of the scene shown (in every colour mode)")
-        self.select.on_update(lambda ev: s.select_instance(option_instance(self.select.value)))
+        self.select.on_update(lambda ev: s.select_instance(option_id(self.select.value)))
         self.table = s.client.gui.add_markdown(self.markdown(s))
 
     def refresh(self, s: "Session", change: Change) -> None:
@@ -243,14 +244,8 @@ NO_INSTANCE = "none"
 
 
 def instance_option(k: int) -> str:
+    """Dropdown text of instance ``k`` ("I3"; read back by ``edit.option_id``, as the Edit tab's)."""
     return NO_INSTANCE if k < 0 else f"I{k}"
-
-
-def option_instance(text: str) -> int:
-    try:
-        return int(str(text)[1:]) if str(text).startswith("I") else -1
-    except ValueError:
-        return -1
 
 
 def _scene_markdown(s: "Session") -> str:
