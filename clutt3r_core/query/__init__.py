@@ -179,6 +179,8 @@ class RunQuery:
         sa = scene_after(self.run_dir, step, seg=self.seg)
         adds = [a for a in added_masks(self.run_dir, step) if a[0] in sa.added]
         inst, done = self.instances, frozenset()
+        if sa.run_share is not None:  # the chain's ids are the Edit tab's corrected ones (update.run_labels)
+            inst = _corrected_evidence(inst, sa.run_share, self.evidence.label_embeddings is not None)
         if adds:
             try:
                 sc = scene_of()
@@ -232,6 +234,19 @@ class RunQuery:
         res = QueryResult(r.query, scores, ranking, ranking[0] if ranking else None, r.confident, tuple(expl),
                           r.backend, name_match=r.name_match, step=self.scene.step, scene=self.scene.label)
         return _with_time(res, time.perf_counter() - t0)
+
+
+def _corrected_evidence(e: InstanceEvidence, share: np.ndarray, label_mode: bool) -> InstanceEvidence:
+    """Run-instance evidence carried to corrected ids: each id's rows mixed by the share of its
+    points each run instance had (a merge mixes its parts, a split-off part keeps its source's;
+    the same rule as the update's stored embeddings, ``update.state.state_from_segmentation``)."""
+    g = (share @ e.grounding).astype(np.float32)
+    if not label_mode:  # shared space: directions, as aggregate_instances
+        g /= np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-12)
+    f = (share @ e.features).astype(np.float32)
+    f /= np.maximum(np.linalg.norm(f, axis=1, keepdims=True), 1e-12)
+    n = np.array([int(e.n_views[r > 0].max(initial=0)) for r in share], np.int32)
+    return InstanceEvidence(g, (share @ e.colors).astype(np.float32), f, n)
 
 
 def _with_time(res: QueryResult, t: float) -> QueryResult:

@@ -99,6 +99,10 @@ class SceneAfter:
         run: the run folder (None in memory).
         stale: one line when corrections were made after the chain was computed (its ids are
             the older labelling's; ``update.run_labels.stale_note``), else None.
+        run_share: (I0, K) float64 when the chain's ids are a corrected labelling: row i = the
+            share of corrected id i's points that each run instance had (rows sum to 1, or 0 for
+            an id made only of background points), to carry per-run-instance evidence (query)
+            to the corrected ids; None when the ids are the run's.
     """
 
     step: int
@@ -115,6 +119,7 @@ class SceneAfter:
     motions: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4)))
     run: Path | None = None
     stale: str | None = None
+    run_share: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.points)
@@ -227,7 +232,7 @@ def scene_after(run_dir: str | Path, step: int | None = None, seg=None,
     hist = st.history[:step]
     if len(hist) != step:
         raise SceneFileError(dirs[step - 1] / "state.json", f"history has {len(hist)} updates, expected {step}")
-    stale = None
+    stale, share = None, None
     n_run = seg.num_instances
     ids0 = np.arange(n_run)
     if st.labels is not None and st.labels.entries > 0:
@@ -238,6 +243,11 @@ def scene_after(run_dir: str | Path, step: int | None = None, seg=None,
             raise SceneFileError(run_dir / "corrections" / "ops.jsonl",
                                  f"replaying its first {st.labels.entries} entries does not give the labels "
                                  f"{dirs[0].name} was computed from (the log was rewritten?)")
+        base = np.asarray(seg.instance, np.int32)
+        both = (lab.instance >= 0) & (base >= 0)
+        share = np.zeros((lab.num_ids, seg.num_instances))
+        np.add.at(share, (lab.instance[both], base[both]), 1.0)
+        share /= np.maximum(share.sum(axis=1, keepdims=True), 1.0)
         inst0, n_run, ids0 = lab.instance, lab.num_ids, lab.ids
         stale = stale_note(run_dir, seg)
     elif (run_dir / "corrections" / "ops.jsonl").is_file():
@@ -271,4 +281,4 @@ def scene_after(run_dir: str | Path, step: int | None = None, seg=None,
     present = np.setdiff1d(np.union1d(ids0, list(added)), list(removed)).astype(np.int32)
     moved = sorted({k for h in hist for k in h.displaced} & set(present.tolist()))
     return SceneAfter(step, len(dirs), hist[-1].frame, np.concatenate(P), np.concatenate(C), np.concatenate(N),
-                      np.concatenate(I), present, removed, added, tuple(moved), M, run_dir, stale)
+                      np.concatenate(I), present, removed, added, tuple(moved), M, run_dir, stale, share)

@@ -178,3 +178,35 @@ def test_run_without_corrections_updates_exactly_as_before(run, base):
     for d in (doc, doc_old):
         d.pop("time_s")
     assert doc == doc_old
+
+
+def test_query_on_a_corrected_chain_ranks_the_corrected_ids(tmp_path):
+    """A split before the update: the split-off id (not a run instance) is ranked with the
+    evidence of the run instance it came from; the merged-away id is not ranked."""
+    from clutt3r_core.query import RunQuery
+    from clutt3r_core.registry import REGISTRY
+    from clutt3r_core.synth import write_synth_scene
+    from tests.core.query._fake import FakeGrounder
+
+    seg, scene = tiny_segmentation(), tiny_scene()
+    run = save_run(seg, tmp_path / "run", scene_root=write_synth_scene(scene, tmp_path / "scene", contact_sheet=False))
+    a, b, c = _largest(seg, 3)
+    pts = np.flatnonzero(seg.instance == a)
+    half = pts[seg.points[pts, 0] < np.median(seg.points[pts, 0])]
+    _edit(run, seg, Split(points=tuple(half.tolist()), source=a), Merge(into=c, other=b))
+    k = seg.num_instances
+    st = state_from_run(run)
+    res = update_scene(st, scene.initial_views[0], FAST)
+    from clutt3r_core.update.state import apply_update
+
+    save_state(apply_update(st, res), run / "updates" / "01_frame_000000", res)
+    REGISTRY.register("text_embedder", "fake-ground", FakeGrounder)
+    try:
+        rq = RunQuery.open(run, backend="fake-ground")
+        r = rq.query("orange")
+    finally:
+        REGISTRY.unregister("text_embedder", "fake-ground")
+    assert sorted(r.ranking) == sorted(st.instance_ids.tolist()) and k in r.ranking and b not in r.ranking
+    e = rq.instances
+    np.testing.assert_allclose(e.colors[k], e.colors[a], atol=1e-6)  # the split part: its source's
+    assert rq.scene.stale is None
