@@ -170,38 +170,39 @@ def chain_steps(data) -> tuple[StepSummary, ...]:
 def scene_grasp_request(data, step: int, k: int, knn: int = 16):
     """A ``GraspRequest`` for instance ``k`` of the scene after ``step`` updates: the run's points
     (displaced ones moved, their normals turned with them, removed ones left out) plus the added
-    instances' points, whose normals are PCA normals (``knn`` neighbours) oriented towards the
-    camera of the update that added them. No depth views: the initial views no longer show the
-    updated scene (a cloud-only collision check; the Grasps tab says so)."""
+    instances' points (by id), whose normals are PCA normals (``knn`` neighbours) of their points
+    where they are now, oriented towards the camera of the update that added them moved like the
+    object since: as ``clutt3r grasp`` builds it (``update.scene_after``), so the Grasps tab plans
+    what the command plans. No depth views: the initial views no longer show the updated scene (a
+    cloud-only collision check; the Grasps tab says so)."""
     from clutt3r_core.errors import SceneError
     from clutt3r_core.grasping import GraspRequest
     from clutt3r_core.grasping.request import run_voxel_size
     from clutt3r_core.update.scene_after import oriented_normals
-    from clutt3r_viewer.panels.update_sources import update_motions
+    from clutt3r_viewer.panels.update_sources import chain_instance, update_motions
 
     seg = data.seg
     sc = shown_scene(data, step, np.arange(len(seg.points)))
     if int(k) not in set(sc.present.tolist()):
         raise SceneError(f"instance {k} is not in the scene after {step} update(s)")
     keep = ~sc.gone
-    inst0 = np.asarray(seg.instance)
+    inst0 = chain_instance(data)  # the ids the chain's motions name (updated_scene moves the points by them)
     nrm = np.asarray(seg.normals, np.float64).copy()
     M = update_motions(data.updates[:step], seg.num_instances)[step]  # every id of the chain, added ones too
     for i in np.flatnonzero(np.any(M != np.eye(4), axis=(1, 2))):
         sel = inst0 == i
         nrm[sel] = nrm[sel] @ M[i, :3, :3].T
-    pts, nrms, target = [sc.points[keep]], [nrm[keep]], [sc.instance[keep] == k]
-    present = set(sc.present.tolist())
-    for u in data.updates[:step]:
-        for a in () if u.result is None else u.result.added:
-            if a.instance not in present:
-                continue
-            p = np.asarray(a.points, np.float64)  # as added: oriented towards the camera that saw it
-            n = oriented_normals(p, u.camera.T_world_camera[:3, 3] if u.camera is not None else None, knn)
-            T = M[a.instance]  # then moved by the later updates, normals turned with it
-            pts.append(p @ T[:3, :3].T + T[:3, 3])
-            nrms.append(n @ T[:3, :3].T)
-            target.append(np.full(len(p), a.instance == k))
+    pts, nrms, inst = [sc.points[keep]], [nrm[keep]], [sc.instance[keep]]
+    eye_of = {u.frame: u.camera.T_world_camera[:3, 3] for u in data.updates[:step] if u.camera is not None}
+    for a in sorted(sc.added_in):
+        # float32, as the core's state stores the moved points: the same kNN (ties included) and normals
+        p = sc.added_points[sc.added_instance == a].astype(np.float32).astype(np.float64)
+        eye, T = eye_of.get(sc.added_in[a]), M[a]
+        if eye is not None:
+            eye = T[:3, :3] @ np.asarray(eye, np.float64) + T[:3, 3]
+        pts.append(p)
+        nrms.append(oriented_normals(p, eye, knn))
+        inst.append(np.full(len(p), a, np.int32))
     return GraspRequest(points=np.concatenate(pts).astype(np.float32), normals=np.concatenate(nrms).astype(np.float32),
-                        target=np.concatenate(target), instance=int(k), views=(),
+                        target=np.concatenate(inst) == int(k), instance=int(k), views=(),
                         voxel_size=run_voxel_size(seg))
