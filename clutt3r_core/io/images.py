@@ -12,6 +12,7 @@ stderr whatever OpenCV's log level is). Costs one CRC-32 pass over the bytes (ab
 
 from __future__ import annotations
 
+import functools
 import os
 import tempfile
 import zipfile
@@ -77,17 +78,14 @@ def release_freed_memory() -> None:
     sample_seq4's whole-command peak: median 523 -> 494 MiB over 7 alternating runs; the call
     takes ~1 ms).
     """
-    global _malloc_trim
-    if _malloc_trim is None:
-        _malloc_trim = _find_malloc_trim()
-    if _malloc_trim:
-        _malloc_trim(0)
+    trim = _malloc_trim()
+    if trim:
+        trim(0)
 
 
-_malloc_trim = None
-
-
-def _find_malloc_trim():
+@functools.cache
+def _malloc_trim():
+    """glibc's ``malloc_trim``, or False where the process has none (looked up once)."""
     import ctypes
 
     try:  # the process's own symbols, the C library's among them (ctypes.util.find_library runs ldconfig)
