@@ -84,6 +84,15 @@ def with_embedder(state, name: str, embedder=None, scene: str | Path | None = No
 
     emb_obj = embedder if embedder is not None else create_backend("mask_embedder", name)
     allrows = run_instance_embeddings(state.run, emb_obj, scene=scene)
+    if state.labels is not None and state.labels.entries > 0:  # corrected ids (update.run_labels): mix run rows
+        from clutt3r_core.runs import load_run
+        from clutt3r_core.update.run_labels import run_labels, run_share
+
+        seg = load_run(state.run)
+        lab = run_labels(state.run, seg, entries=state.labels.entries)
+        rows = run_share(lab.instance, seg.instance, lab.num_ids, len(allrows)) @ allrows
+        rows /= np.maximum(np.linalg.norm(rows, axis=1, keepdims=True), 1e-12)
+        allrows = rows.astype(np.float32)
     ids = np.asarray(state.instance_ids)
     if len(ids) and int(ids.max()) >= len(allrows):
         raise SceneError(f"state instance ids {ids.tolist()} do not belong to the run {state.run} "

@@ -28,7 +28,7 @@ import numpy as np
 from clutt3r_core.errors import SceneError, SceneFileError
 
 __all__ = ["LabelSource", "RunLabels", "run_labels", "labels_sha256", "chain_source", "labels_change", "stale_note",
-           "LOG_NAME"]
+           "run_share", "LOG_NAME"]
 
 LOG_NAME = "corrections/ops.jsonl"
 
@@ -147,6 +147,18 @@ def run_labels(run_dir: str | Path, seg=None, entries: int | None = None) -> Run
     ids = np.flatnonzero(~lab.deleted & (counts > 0)).astype(np.int32)
     cats = tuple((int(k), lab.categories[k]) for k in ids if lab.categories[k])
     return RunLabels(lab.instance, ids, lab.num_instances, LabelSource(n, active, labels_sha256(lab.instance), cats))
+
+
+def run_share(labels: np.ndarray, run_instance: np.ndarray, num_ids: int, num_run: int) -> np.ndarray:
+    """(num_ids, num_run) float64: row i = the share of corrected id i's points that each run
+    instance had (rows sum to 1; 0 for an id of background points only). Carries any per-run-
+    instance quantity (embeddings, query evidence) to corrected ids: a merge mixes its parts by
+    size, a split-off part keeps its source's."""
+    lab, run = np.asarray(labels), np.asarray(run_instance)
+    both = (lab >= 0) & (run >= 0)
+    share = np.zeros((int(num_ids), int(num_run)))
+    np.add.at(share, (lab[both], run[both]), 1.0)
+    return share / np.maximum(share.sum(axis=1, keepdims=True), 1.0)
 
 
 def chain_source(run_dir: str | Path) -> tuple[Path, LabelSource | None] | None:

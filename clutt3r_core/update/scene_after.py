@@ -236,18 +236,14 @@ def scene_after(run_dir: str | Path, step: int | None = None, seg=None,
     n_run = seg.num_instances
     ids0 = np.arange(n_run)
     if st.labels is not None and st.labels.entries > 0:
-        from clutt3r_core.update.run_labels import run_labels, stale_note
+        from clutt3r_core.update.run_labels import run_labels, run_share, stale_note
 
         lab = run_labels(run_dir, seg, entries=st.labels.entries)  # the labelling the chain was computed from
         if lab.source.labels_sha256 != st.labels.labels_sha256:
             raise SceneFileError(run_dir / "corrections" / "ops.jsonl",
                                  f"replaying its first {st.labels.entries} entries does not give the labels "
                                  f"{dirs[0].name} was computed from (the log was rewritten?)")
-        base = np.asarray(seg.instance, np.int32)
-        both = (lab.instance >= 0) & (base >= 0)
-        share = np.zeros((lab.num_ids, seg.num_instances))
-        np.add.at(share, (lab.instance[both], base[both]), 1.0)
-        share /= np.maximum(share.sum(axis=1, keepdims=True), 1.0)
+        share = run_share(lab.instance, seg.instance, lab.num_ids, seg.num_instances)
         inst0, n_run, ids0 = lab.instance, lab.num_ids, lab.ids
         stale = stale_note(run_dir, seg)
     elif (run_dir / "corrections" / "ops.jsonl").is_file():

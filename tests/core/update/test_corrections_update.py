@@ -210,3 +210,9 @@ def test_query_on_a_corrected_chain_ranks_the_corrected_ids(tmp_path):
     e = rq.instances
     np.testing.assert_allclose(e.colors[k], e.colors[a], atol=1e-6)  # the split part: its source's
     assert rq.scene.stale is None
+    # re-embedding the corrected state with another backend (clutt3r update --embedder): rows by point share
+    from clutt3r_core.update.embed import with_embedder
+
+    st2 = with_embedder(st, "fake-ground", embedder=FakeGrounder())
+    assert st2.instance_ids.tolist() == st.instance_ids.tolist()
+    np.testing.assert_allclose(st2.embedding_of(k), st2.embedding_of(a), atol=1e-6)
