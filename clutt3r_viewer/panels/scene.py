@@ -117,10 +117,14 @@ class ScenePanel(Panel):
             fn = getattr(src, "added", None)
             added = fn(st.event) if fn is not None else None
         else:
-            sc = s.scene()
-            pts = sc.points if sc.moved else None
-            if len(sc.added_points):
-                added = (sc.added_points, sc.added_instance, s.added_colors())
+            pts = None
+            # the run itself (no update shown) is the cloud as built: no ShownScene to build and
+            # cache (57 ms and 28 MiB per level of detail at 1M points, 1.6 ms per recolour)
+            if s.scene_step() > 0:
+                sc = s.scene()
+                pts = sc.points
+                if len(sc.added_points):
+                    added = (sc.added_points, sc.added_instance, s.added_colors())
         if pts is not None:
             self.cloud.points = (pts - s.app.data.centre).astype(np.float32)
             self.moved = True
