@@ -186,7 +186,7 @@ class RunQuery:
                 sc = scene_of()
             except Clutt3rError:
                 sc = None  # no scene folder: the added instances stay unranked (the result says so)
-            inst, done = added_instance_evidence(self.instances, self.evidence, self.grounder, sc, adds)
+            inst, done = added_instance_evidence(inst, self.evidence, self.grounder, sc, adds)
         return replace(self, scene=sa, instances=inst, described=done)
 
     @classmethod
