@@ -199,14 +199,30 @@ def test_query_on_a_corrected_chain_ranks_the_corrected_ids(tmp_path):
     res = update_scene(st, scene.initial_views[0], FAST)
     from clutt3r_core.update.state import apply_update
 
-    save_state(apply_update(st, res), run / "updates" / "01_frame_000000", res)
+    s1 = apply_update(st, res)
+    save_state(s1, run / "updates" / "01_frame_000000", res)
+    # a second update adds an instance (described from a mask of the scene's view 0) on top of the corrected ids
+    from clutt3r_core.update import InstanceUpdate, UpdateResult
+    from clutt3r_core.update.newobj import next_instance_id
+    from clutt3r_core.update.types import NewInstance, NewMask
+
+    view = scene.initial_views[0]
+    new = next_instance_id(s1)
+    m = int(view.masks.ids[0])
+    cube = (np.random.default_rng(0).random((200, 3)) * 0.02 + seg.points.mean(0) + [0, 0, 0.12]).astype(np.float32)
+    recs = [InstanceUpdate(int(i), "static", 0.9, 0.9, None) for i in s1.instance_ids]
+    r2 = UpdateResult(view.frame, tuple(recs + [InstanceUpdate(new, "new", None, 0.9, None, m, "new-depth")]),
+                      (NewMask(m, 100, new),), np.zeros((len(recs) + 1, 4, 4), bool), np.full((4, 4), -1, np.int32),
+                      0.1, added=(NewInstance(new, m, cube, np.full((200, 3), 200, np.uint8), None),))
+    save_state(apply_update(s1, r2), run / "updates" / "02_frame_000000", r2)
     REGISTRY.register("text_embedder", "fake-ground", FakeGrounder)
     try:
         rq = RunQuery.open(run, backend="fake-ground")
         r = rq.query("orange")
     finally:
         REGISTRY.unregister("text_embedder", "fake-ground")
-    assert sorted(r.ranking) == sorted(st.instance_ids.tolist()) and k in r.ranking and b not in r.ranking
+    assert new in rq.described and new > k
+    assert sorted(r.ranking) == sorted(st.instance_ids.tolist() + [new]) and k in r.ranking and b not in r.ranking
     e = rq.instances
     np.testing.assert_allclose(e.colors[k], e.colors[a], atol=1e-6)  # the split part: its source's
     assert rq.scene.stale is None
