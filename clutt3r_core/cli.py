@@ -241,6 +241,11 @@ def main(argv: list[str] | None = None) -> None:
             raise
         _fail("interrupted")
         sys.exit(130)
+    finally:
+        if args[:1] == ["segment"]:  # its scene, begun before parsing and not taken: not for a later call
+            from clutt3r_core.commands import scene_prefetch
+
+            scene_prefetch.discard()
 
 
 if __name__ == "__main__":

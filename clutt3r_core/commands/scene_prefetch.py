@@ -25,7 +25,7 @@ from __future__ import annotations
 import threading
 from pathlib import Path
 
-__all__ = ["scene_argument", "start", "take"]
+__all__ = ["scene_argument", "start", "take", "discard"]
 
 _pending: tuple[Path, threading.Thread, list] | None = None
 
@@ -91,3 +91,10 @@ def take(scene: Path) -> object | None:
     if isinstance(box[0], BaseException):
         raise box[0]
     return box[0]
+
+
+def discard() -> None:
+    """Forget a scene ``start`` began that the command did not take (tyro refused the arguments):
+    a later command in the same process loads its scene afresh, as it is then."""
+    global _pending
+    _pending = None
