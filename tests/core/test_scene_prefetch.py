@@ -110,3 +110,20 @@ def test_a_broken_scene_still_gives_one_error_line(scene_dir, tmp_path, capsys):
     assert e.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "transforms.json" in err[0] and "not valid JSON" in err[0], err
+
+
+def test_a_scene_the_command_did_not_take_is_not_handed_to_a_later_call(scene_dir, tmp_path, capsys):
+    """tyro refuses the line after the scene began loading: the prefetched copy is dropped, so
+    the command called later in the same process reads the scene as it is then."""
+    import shutil
+
+    from clutt3r_core.commands.segment import segment_command
+
+    scene = tmp_path / "scene"
+    shutil.copytree(scene_dir, scene)
+    with pytest.raises(SystemExit):
+        main(["segment", str(scene), "--out", str(tmp_path / "r0"), "--no-such-option"])
+    assert scene_prefetch._pending is None
+    (scene / "transforms.json").write_text("{not json")  # broken after the refused call
+    with pytest.raises(SceneFileError, match="not valid JSON"):
+        segment_command(scene, tmp_path / "r1")
