@@ -45,6 +45,8 @@ def _same_call(args: list[str]) -> None:
     parsed = _tyro(args)
     assert parsed is not None, f"accepted {args}, which tyro refuses"
     scene, out, preset = plain
+    # a parameter segment_command gains must be passed by the plain path too (cli._segment_without_parser)
+    assert set(parsed) == {"scene", "out", "config", "preset", "mask_options"}, sorted(parsed)
     assert (parsed["scene"], parsed["out"], parsed["preset"]) == (scene, out, preset), args
     assert parsed["config"] == SegmentConfig() and parsed["mask_options"] == MaskOptions(), args
 
