@@ -209,21 +209,32 @@ class RunQuery:
         return np.array([k for k in sa.present.tolist() if k not in sa.added or k in self.described], np.int64)
 
     def query(self, text: str) -> QueryResult:
+        if self.scene is not None:
+            sa = self.scene
+            return self.query_among(text, self.ranked_ids(), sa.step, sa.label, int(sa.present.max(initial=-1)) + 1)
         t0 = time.perf_counter()
         q = parse_query(text)
         emb = self.grounder.embed_text([q.name])[0] if q.name else None
-        if self.scene is None:
-            res = score_instances(self.instances, q, emb, self.config, self.evidence.label_embeddings,
-                                  self.evidence.labels, self.evidence.backend)
-            return _with_time(res, time.perf_counter() - t0)
-        # an updated scene: only the instances in it are scored (the name term is z-scored over
-        # them, so a removed object does not shift the others' scores), then mapped back to ids
-        ids = self.ranked_ids()
+        res = score_instances(self.instances, q, emb, self.config, self.evidence.label_embeddings,
+                              self.evidence.labels, self.evidence.backend)
+        return _with_time(res, time.perf_counter() - t0)
+
+    def query_among(self, text: str, ids, step: int, scene: str, n_ids: int = 0) -> QueryResult:
+        """``text`` ranked among the instance ids ``ids`` only (rows of ``instances``): the ones
+        in the scene after ``step`` updates, named ``scene`` ("scene after update 2 (frame 9)").
+        ``scores`` covers ids 0..max(n_ids, rows) - 1, NaN outside ``ids``. ``query`` calls it
+        for ``self.scene``; the viewer's Query tab for the scene it shows (the same scores)."""
+        t0 = time.perf_counter()
+        q = parse_query(text)
+        emb = self.grounder.embed_text([q.name])[0] if q.name else None
+        # only the instances in the scene are scored (the name term is z-scored over them, so a
+        # removed object does not shift the others' scores), then mapped back to ids
+        ids = np.asarray(ids, np.int64)
         e = self.instances
         sub = InstanceEvidence(e.grounding[ids], e.colors[ids], e.features[ids], e.n_views[ids])
         r = score_instances(sub, q, emb, self.config, self.evidence.label_embeddings,
                             self.evidence.labels, self.evidence.backend)
-        n = max(e.num_instances, int(self.scene.present.max(initial=-1)) + 1)
+        n = max(e.num_instances, int(n_ids))
         scores = np.full(n, np.nan, np.float32)
         scores[ids] = r.scores
         nan = float("nan")
@@ -232,7 +243,7 @@ class RunQuery:
             expl[int(k)] = r.explanations[j]
         ranking = tuple(int(ids[j]) for j in r.ranking)
         res = QueryResult(r.query, scores, ranking, ranking[0] if ranking else None, r.confident, tuple(expl),
-                          r.backend, name_match=r.name_match, step=self.scene.step, scene=self.scene.label)
+                          r.backend, name_match=r.name_match, step=int(step), scene=scene)
         return _with_time(res, time.perf_counter() - t0)
 
 

@@ -163,21 +163,24 @@ class QueryPanel(Panel):
     def _language_scores(self, s: "Session", text: str):
         rq = self._run_query_object(s)
         scored: frozenset[int] = frozenset()
-        if s.scene_step() > 0 and any(u.result is not None and u.result.added for u in s.app.data.updates):
+        step = s.scene_step()
+        if step > 0 and any(u.result is not None and u.result.added for u in s.app.data.updates):
             rq, scored = self._added_query_object(s, rq)
-        res = rq.query(text)
+        if step > 0:  # only the instances of the scene shown, scored as `clutt3r query --step` scores them
+            sc = s.scene()
+            ids = [k for k in sc.present.tolist() if k not in sc.added_in or k in scored]
+            res = rq.query_among(text, ids, step, f"scene after update {step}", int(sc.present.max(initial=-1)) + 1)
+        else:
+            res = rq.query(text)
         scores, note = _in_scene(s, res.scores.astype(np.float32), None, scored)
-        ranking = [k for k in res.ranking if np.isfinite(scores[k])]  # removed instances are not ranked
-        target = res.target if res.target in ranking else (ranking[0] if ranking else None)
-        lines = [f"**{text}** → I{target} "
-                 + ("(confident)" if res.confident and target == res.target else
-                    "(_not confident: nothing matches clearly_)"),
+        lines = [f"**{text}** → I{res.target} "
+                 + ("(confident)" if res.confident else "(_not confident: nothing matches clearly_)"),
                  "", "| inst | score | why |", "|---|---|---|"]
-        for k in ranking[:8]:
+        for k in res.ranking[:8]:
             why = res.explanations[k].summary().replace("|", "/")
             lines.append(f"| I{k} | {res.scores[k]:+.2f} | {why} |")
         lines.append(f"\n_{res.backend}, {res.time_s * 1e3:.0f} ms_")
-        return scores, target, "\n".join(lines + note)
+        return scores, res.target, "\n".join(lines + note)
 
     # -- shared-space text embedder (the run's own) --------------------------------------------
 

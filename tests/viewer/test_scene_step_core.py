@@ -33,3 +33,42 @@ def test_the_grasps_tab_plans_on_the_commands_request(tiny_run_dir, tiny_seg, ti
             np.testing.assert_array_equal(got.normals, want.normals)
             np.testing.assert_array_equal(got.target, want.target)
             assert got.voxel_size == want.voxel_size and got.target.any()
+
+
+def test_the_query_tab_scores_the_scene_as_clutt3r_query_does(tiny_run_dir, tiny_seg, tiny_scene, tmp_path,
+                                                                 monkeypatch):
+    """After an update the Query tab ranks the instances of the scene shown with the scores of
+    ``clutt3r query --step`` (``RunQuery.query_among``): the removed one is not scored and does not
+    shift the others' (the name term is z-scored over the scene's instances only), the added one
+    is described from its mask."""
+    import threading
+    from types import SimpleNamespace
+
+    import clutt3r_core.query as cq
+    import clutt3r_viewer.panels.query as qp
+    import clutt3r_viewer.panels.update_sources  # noqa: F401
+    from clutt3r_viewer.loading import load_viewer_data
+    from clutt3r_viewer.scene_step import shown_scene
+    from tests.core.query._fake import FakeGrounder
+    from tests.viewer._update_chain import build_chain
+
+    v = tiny_scene.initial_views[0]
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run_dir, run)
+    k = build_chain(tiny_seg, run, frame=int(v.frame), mask=int(v.masks.ids[0]))
+    d = load_viewer_data(run)
+    monkeypatch.setattr(qp, "language_backend_name", lambda: "fake-ground")
+    monkeypatch.setattr(cq, "create_grounder", lambda name=None: FakeGrounder())
+    state = SimpleNamespace(query="", query_best=-1, query_scores=None, color_mode="instance")
+    s = SimpleNamespace(app=SimpleNamespace(text_embedder=None, data=d), lock=threading.Lock(), state=state,
+                        changed=lambda c: None, scene_step=lambda: 1,
+                        scene=lambda: shown_scene(d, 1, np.arange(len(d.seg.points))))
+    panel = qp.QueryPanel()
+    panel.result = SimpleNamespace(content="")
+    rq = cq.RunQuery.open(run, grounder=FakeGrounder(), step=1, scene=tiny_run_dir.parent / "scene")
+    for text in ("the red thing", "the blue thing", "yellow"):
+        panel.run_query(s, text)
+        want = rq.query(text)
+        np.testing.assert_array_equal(state.query_scores, want.scores)
+        assert state.query_best == want.target and np.isnan(want.scores[2]) and np.isfinite(want.scores[k])
+        assert f"→ I{want.target} " + ("(confident)" if want.confident else "(_not confident") in panel.result.content
