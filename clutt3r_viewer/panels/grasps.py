@@ -82,11 +82,9 @@ class GraspsPanel(Panel):
 
     def build(self, s: "Session") -> None:
         gui = s.client.gui
-        seg = s.app.data.seg
-        counts = np.bincount(seg.instance[seg.instance >= 0], minlength=seg.num_instances)
-        self.target = gui.add_dropdown("Target", [f"I{k} ({int(counts[k])} pts)" for k in range(seg.num_instances)]
-                                       or ["none"], hint="instance to grasp in the scene shown (after the updates "
-                                       "chosen in the Updates tab); selecting a tree node or an instance picks it")
+        self.target = gui.add_dropdown("Target", self._options(s), hint="instance to grasp in the scene shown (after "
+                                       "the updates chosen in the Updates tab); selecting a tree node or an instance "
+                                       "picks it")
         self.use_query = gui.add_button("Use query target", hint="the best instance of the Query tab's last query")
         self.use_query.on_click(lambda ev: self._use_query(s))
         self.top = gui.add_slider("Top N", min=1, max=50, step=1, initial_value=10)
