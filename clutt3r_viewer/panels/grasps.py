@@ -19,6 +19,7 @@ import numpy as np
 from clutt3r_core.grasping.gripper import FRANKA
 from clutt3r_viewer.assets import gripper_mesh
 from clutt3r_viewer.data import ramp_colors
+from clutt3r_viewer.edit import option_id
 from clutt3r_viewer.layers import HIGHLIGHT
 from clutt3r_viewer.panels.base import Change, Panel
 
@@ -89,7 +90,7 @@ class GraspsPanel(Panel):
         self.use_query.on_click(lambda ev: self._use_query(s))
         self.top = gui.add_slider("Top N", min=1, max=50, step=1, initial_value=10)
         self.plan = gui.add_button("Plan grasps")
-        self.plan.on_click(lambda ev: self.plan_for(s, _option_id(self.target.value)))
+        self.plan.on_click(lambda ev: self.plan_for(s, option_id(self.target.value)))
         self.summary = gui.add_markdown("_pick a target and plan_")
         self.grasp = gui.add_dropdown("Grasp", ["none"], initial_value="none")
         self.grasp.on_update(lambda ev: self.select_grasp(s, self.grasp.value))
@@ -105,7 +106,7 @@ class GraspsPanel(Panel):
         if change & Change.SCENE:
             opts = self._options(s)
             if tuple(opts) != tuple(self.target.options):
-                keep = _option_id(self.target.value)
+                keep = option_id(self.target.value)
                 self.target.options = opts
                 self._set_target(keep)
         if change & Change.NODE and s.state.node >= 0:
@@ -133,7 +134,7 @@ class GraspsPanel(Panel):
 
     def _set_target(self, k: int) -> None:
         for opt in self.target.options:
-            if _option_id(opt) == k:
+            if option_id(opt) == k:
                 self.target.value = opt
 
     def _use_query(self, s: "Session") -> None:
@@ -224,10 +225,3 @@ class GraspsPanel(Panel):
         self._grasps.save_json(run_dir / "grasps.json", self._target)
         self._grasps.save_npz(run_dir / "grasps.npz")
         s.notify("Grasps", f"wrote {run_dir / 'grasps.json'} and grasps.npz")
-
-
-def _option_id(text: str | None) -> int:
-    try:
-        return int(str(text).split()[0][1:])
-    except (ValueError, IndexError):
-        return -1
