@@ -79,7 +79,7 @@ def grasp_command(
     from rich.console import Console
 
     from clutt3r_core.grasping import load_base_frame
-    from clutt3r_core.grasping.request import request_from_segmentation, run_views, scene_now
+    from clutt3r_core.grasping.request import request_from_segmentation, run_views, run_voxel_size, scene_now
     from clutt3r_core.registry import create_backend, default_backend
     from clutt3r_core.runs import load_run
 
@@ -101,18 +101,13 @@ def grasp_command(
         instance, note = _target_from_query(run, query, scene, step)
         if note:
             notes.append(note)
-    name = planner or default_backend("grasp_planner")
-    kwargs = {"config": config} if name == "antipodal" else {}
     if step > 0:
         sa = scene_now(run, step, seg, scene)
-        sa.check_present(instance)  # a removed instance: names the update that removed it
+        req = sa.grasp_request(instance, voxel_size=run_voxel_size(seg))  # a removed instance: names its update
         if sa.stale:  # corrections made after the updates: their ids are the older labelling's
             notes.append(sa.stale)
-        voxel = float(getattr(getattr(seg.trace.config, "pointcloud", None), "voxel_size", 0.005))
         console.print(f"{sa.label}: collision check against the updated cloud (the initial depth views no longer "
                       "show the scene)")
-        gp = create_backend("grasp_planner", name, **kwargs)
-        req = sa.grasp_request(instance, voxel_size=voxel)
     else:
         if not 0 <= instance < seg.num_instances:
             raise SystemExit(f"clutt3r grasp: {run}: instance {instance} does not exist "
@@ -122,8 +117,9 @@ def grasp_command(
         views, warn = run_views(run, scene)
         if warn:
             notes.append(warn)
-        gp = create_backend("grasp_planner", name, **kwargs)
         req = request_from_segmentation(seg, instance, views)
+    name = planner or default_backend("grasp_planner")
+    gp = create_backend("grasp_planner", name, **({"config": config} if name == "antipodal" else {}))
     t0 = time.perf_counter()
     gs = gp.plan(req)
     dt = time.perf_counter() - t0
