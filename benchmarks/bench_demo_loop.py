@@ -26,7 +26,7 @@ from scipy.spatial import cKDTree
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_update import make_pair  # noqa: E402
 
-from clutt3r_core.grasping.request import request_from_segmentation, run_views  # noqa: E402
+from clutt3r_core.grasping.request import request_from_segmentation, run_views, run_voxel_size  # noqa: E402
 from clutt3r_core.query import RunQuery, create_grounder  # noqa: E402
 from clutt3r_core.registry import create_backend  # noqa: E402
 from clutt3r_core.runs import load_run  # noqa: E402
@@ -79,7 +79,7 @@ def main() -> None:
               f"I{k} ranked after the update: {k in r1.ranking}")
     gp = create_backend("grasp_planner", "antipodal")
     views, _ = run_views(run, None)
-    vox = float(seg.trace.config.pointcloud.voxel_size)
+    vox = run_voxel_size(seg)  # as clutt3r grasp --step declares it
     for k in list(sa.displaced) + sorted(sa.added):
         req1 = sa.grasp_request(k, voxel_size=vox)
         p1 = []
