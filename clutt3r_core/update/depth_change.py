@@ -8,6 +8,8 @@ Runs after the association (associate.py) when the post-interaction view has dep
    view, segmentation fragments under ``AssociationConfig.min_points``) keep the paper's
    IoU rule and associate.py's rule 5. Instances left unjudged are tested once more with the
    moved ones out of the z-buffer (``recheck_hidden``: what a moved object hid is visible now).
+   An in-place one is moved when its unmoved points fail the free-space test on its own mask
+   and a registration there passes (``verify_in_place``: a push shorter than the object).
 2. Candidate masks: mask candidates no larger than ``max_object_fraction`` of the image whose
    valid-depth pixels are mostly not explained by the in-place instances
    (``depth.explained_pixels``); their points are the unexplained depth pixels (a displaced
@@ -150,6 +152,11 @@ def depth_changes(state, view: View, config: UpdateConfig, assoc: Association, s
             i = rows[k]
             agree[i], farther[i], nearer[i], visible[i] = p2.agree[j], p2.farther[j], p2.nearer[j], p2.visible[j]
         pc = PlaceCheck(pc.ids, agree, farther, nearer, visible)
+    starts = start_rotations(config.pose.registration_yaw_step_deg)
+    if cc.verify_in_place and in_place:
+        unplaced = _verify_in_place(state, view, config, assoc, in_place, starts)
+        in_place -= unplaced
+        moved |= unplaced
     stay = np.array(sorted(in_place), np.int32)
     explained = explained_pixels(state.points, state.instance, stay, cam, depth, voxel, cc.in_place_tol)
     fits: dict = {}
@@ -177,7 +184,6 @@ def depth_changes(state, view: View, config: UpdateConfig, assoc: Association, s
             continue
         cands.append((mi, pts, float(np.linalg.norm(np.ptp(pts, axis=0))), rest))
     cand_pts = {c[0]: c[1] for c in cands}
-    starts = start_rotations(config.pose.registration_yaw_step_deg)
     found, n_reg = _register_all(state, view, config, sorted(moved | hidden), cands, starts, occ,
                                  lambda k: cc.accept_iou if k in moved else cc.accept_iou_hidden, moved)
     refused: dict = {}
@@ -216,6 +222,39 @@ def depth_changes(state, view: View, config: UpdateConfig, assoc: Association, s
     for k in fits:  # refused on one target, accepted on another
         refused.pop(k, None)
     return DepthChanges(pc, frozenset(in_place), frozenset(moved), fits, explained, n_reg, refused)
+
+
+def _verify_in_place(state, view: View, config: UpdateConfig, assoc: Association, in_place: set,
+                     starts: np.ndarray) -> set:
+    """``ChangeConfig.verify_in_place``: the in-place ids whose unmoved points fail the free-space
+    test (``accept_consistency``) while a registration to their own mask's depth points passes
+    every ``accept_*`` test (IoU with the mask minus the other in-place instances' pixels)."""
+    cc, cam, depth = config.change, view.camera, view.depth
+    col = {int(k): i for i, k in enumerate(assoc.instance_ids)}
+    out = set()
+    for k in sorted(in_place):
+        if (mi := int(assoc.mask_index[col[k]]) if k in col else -1) < 0:
+            continue
+        sel = state.instance == k
+        model = state.points[sel].astype(np.float64)
+        sub = model if len(model) <= 1500 else model[  # prepare_model's subset, without its normals' cost
+            np.sort(np.random.default_rng(0).choice(len(model), 1500, False))]
+        if _consistency(sub, np.eye(4), cam, depth, cc.in_place_tol)[0] >= cc.accept_consistency:
+            continue  # the unmoved points pass the free-space test
+        others = np.array(sorted(in_place - {k}), np.int32)
+        expl = explained_pixels(state.points, state.instance, others, cam, depth, state.voxel_size, cc.in_place_tol)
+        pts = mask_points(cam, depth, view.masks.masks[mi], exclude=expl, max_points=250)
+        if len(pts) < 30:
+            continue
+        prepared = prepare_model(model, state.colors[sel])
+        reg = register(prepared, pts, cam, depth, starts=starts, tol=cc.in_place_tol,
+                       keep_consistent=cc.registration_keep_consistent)
+        if reg is None or reg.fitness < cc.accept_fitness or reg.consistency < cc.accept_consistency:
+            continue
+        occ = project_depth(state.points, state.instance, others, cam, state.voxel_size) if len(others) else None
+        if fit_iou(model, reg.T_world, cam, state.voxel_size, occ, view.masks.masks[mi] & ~expl) >= cc.accept_iou:
+            out.add(k)
+    return out
 
 
 def _carry_fragments(state, view: View, config: UpdateConfig, left: list[int], fits: dict) -> None:

@@ -551,6 +551,14 @@ class ChangeConfig:
     cover part of it). Measured: intermediate_1901's removed flat object fitted onto a static
     object's mask (S_semantic 0.78 vs the owner's 0.98); the one right fit to a mask owned by
     an in-place instance on 300-1900 (hard_700) has 0.98 vs 0.73."""
+    verify_in_place: bool = True
+    """Ours (session 7): an in-place instance whose unmoved points fail the free-space test
+    (``accept_consistency``) on its associated mask's depth points, while a registration to
+    that mask passes every ``accept_*`` test, is treated as moved (a push shorter than the
+    object: its old place is still mostly itself). Measured on the in-place instances with a
+    mask of 300/500/700/900 (264; docs/update.md, "Session 7: displaced objects not found"):
+    the one displaced object judged in place (intermediate_502) has 0.67 unmoved, the static
+    ones 0.72-1.00 (one at 0.60 has no passing registration)."""
     carry_contact: float = 0.25
     """Ours (session 7): a moved instance that no target fits shares the motion of a fitted
     instance whose stored points touch it (this fraction of its points within ``in_place_tol``
