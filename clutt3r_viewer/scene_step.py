@@ -82,7 +82,7 @@ class ShownScene:
 def shown_scene(data, step: int, idx: np.ndarray) -> ShownScene:
     """The scene after the first ``step`` updates of ``data.updates`` for points ``idx``
     (cached per (step, displayed point count): the level of detail fixes ``idx``)."""
-    from clutt3r_viewer.panels.update_sources import added_instances, updated_scene
+    from clutt3r_viewer.panels.update_sources import added_instances, chain_instance, updated_scene
 
     step = int(np.clip(step, 0, len(data.updates)))
     idx = np.asarray(idx, np.int64)
@@ -108,7 +108,12 @@ def shown_scene(data, step: int, idx: np.ndarray) -> ShownScene:
     apts, ainst, acol, added_in = added_instances(data, step)
     removed = sorted({r.instance for u in data.updates[:step] if u.result is not None
                       for r in u.result.instances if r.status == "removed"})
-    run_ids = np.setdiff1d(np.arange(seg.num_instances, dtype=np.int32), removed)
+    ids = np.arange(seg.num_instances, dtype=np.int32)
+    if step > 0:  # the ids of the labelling the chain was computed from (the Edit tab's corrections then)
+        i0 = chain_instance(data)
+        if not np.array_equal(i0, seg.instance):  # as update.scene_after: its ids with points
+            ids = np.unique(i0[i0 >= 0])
+    run_ids = np.setdiff1d(ids, removed)
     present = np.union1d(run_ids, np.unique(ainst)).astype(np.int32)
     out = ShownScene(step, idx, pts, np.asarray(inst, np.int32), gone, apts, ainst, acol, present,
                      tuple(int(x) for x in removed), added_in)

@@ -72,3 +72,35 @@ def test_the_query_tab_scores_the_scene_as_clutt3r_query_does(tiny_run_dir, tiny
         np.testing.assert_array_equal(state.query_scores, want.scores)
         assert state.query_best == want.target and np.isnan(want.scores[2]) and np.isfinite(want.scores[k])
         assert f"→ I{want.target} " + ("(confident)" if want.confident else "(_not confident") in panel.result.content
+
+
+def test_a_corrected_chain_shows_the_commands_instances(tiny_run_dir, tiny_seg, tmp_path):
+    """A merge made in the Edit tab before the update: the scene after it holds the corrected ids
+    (the merged-away one is not an instance there) as ``update.scene_after`` does, and the Grasps
+    tab's request on the merged instance (moved by the update, its merged fragment with it) is the
+    command's."""
+    import clutt3r_viewer.panels.update_sources  # noqa: F401
+    from clutt3r_core.annotations import Annotations, Merge
+    from clutt3r_core.grasping.request import request_from_run
+    from clutt3r_core.update.scene_after import scene_after
+    from clutt3r_core.update.state import apply_update, save_state, state_from_run
+    from clutt3r_viewer.loading import load_viewer_data
+    from clutt3r_viewer.scene_step import scene_grasp_request, shown_scene
+    from tests.viewer.test_update_sources import _fake_update
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run_dir, run)
+    counts = np.bincount(tiny_seg.instance[tiny_seg.instance >= 0], minlength=tiny_seg.num_instances)
+    a, b = (int(k) for k in np.argsort(-counts)[:2])
+    with Annotations.open(run, segmentation=tiny_seg, author="test") as ann:
+        ann.apply_op(Merge(into=a, other=b))
+    s0 = state_from_run(run)
+    r1 = _fake_update(s0, 8, k=a, shift=0.05, removed=None, n_iter=3)
+    save_state(apply_update(s0, r1), run / "updates" / "01_frame_000008", r1)
+    d = load_viewer_data(run, images=False)
+    want = scene_after(run, 1)
+    assert b not in want.present.tolist()
+    np.testing.assert_array_equal(shown_scene(d, 1, np.arange(len(tiny_seg.points))).present, want.present)
+    got, (req, _, _) = scene_grasp_request(d, 1, a), request_from_run(run, a, step=1)
+    for x in ("points", "normals", "target"):
+        np.testing.assert_array_equal(getattr(got, x), getattr(req, x))
