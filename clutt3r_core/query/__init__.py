@@ -55,6 +55,7 @@ __all__ = [
     "score_instances",
     "create_grounder",
     "target_points",
+    "corrected_evidence",
 ]
 
 
@@ -180,7 +181,7 @@ class RunQuery:
         adds = [a for a in added_masks(self.run_dir, step) if a[0] in sa.added]
         inst, done = self.instances, frozenset()
         if sa.run_share is not None:  # the chain's ids are the Edit tab's corrected ones (update.run_labels)
-            inst = _corrected_evidence(inst, sa.run_share, self.evidence.label_embeddings is not None)
+            inst = corrected_evidence(inst, sa.run_share, self.evidence.label_embeddings is not None)
         if adds:
             try:
                 sc = scene_of()
@@ -247,7 +248,7 @@ class RunQuery:
         return _with_time(res, time.perf_counter() - t0)
 
 
-def _corrected_evidence(e: InstanceEvidence, share: np.ndarray, label_mode: bool) -> InstanceEvidence:
+def corrected_evidence(e: InstanceEvidence, share: np.ndarray, label_mode: bool) -> InstanceEvidence:
     """Run-instance evidence carried to corrected ids: each id's rows mixed by the share of its
     points each run instance had (a merge mixes its parts, a split-off part keeps its source's;
     the same rule as the update's stored embeddings, ``update.state.state_from_segmentation``)."""

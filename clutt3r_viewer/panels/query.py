@@ -88,18 +88,29 @@ def _in_scene(s: "Session", scores: np.ndarray, text_embedding: np.ndarray | Non
 
 
 def added_instance_evidence(rq, data) -> tuple[object, frozenset[int]]:
-    """``rq.instances`` (the run's ``InstanceEvidence``) extended with one row per instance id
-    the updates of ``data`` added, each described by the backend from its mask in the post view
-    that added it (the core's ``query.added.added_instance_evidence``, which ``clutt3r query``
-    uses too); rows of ids without a description are zeros. Returns (evidence, the ids described)."""
+    """``rq.instances`` (the run's ``InstanceEvidence``) on the ids of the update chain of ``data``,
+    as ``clutt3r query --step`` carries it: rows mixed by point share when the chain was computed
+    from a corrected labelling (``update_sources.chain_instance``; the core's
+    ``query.corrected_evidence`` over ``update.run_labels.run_share``), then one row per
+    instance id the updates added, each described by the backend from its mask in the post view
+    that added it (``query.added.added_instance_evidence``); rows of ids without a description are
+    zeros. Returns (evidence, the added ids described)."""
     from clutt3r_core.io import load_scene
+    from clutt3r_core.query import corrected_evidence
     from clutt3r_core.query.added import added_instance_evidence as describe
+    from clutt3r_viewer.panels.update_sources import chain_instance
 
+    base, seg, i0 = rq.instances, data.seg, chain_instance(data)
+    if not np.array_equal(i0, seg.instance):
+        from clutt3r_core.update.run_labels import run_share
+
+        share = run_share(i0, seg.instance, max(int(i0.max(initial=-1)) + 1, seg.num_instances), seg.num_instances)
+        base = corrected_evidence(base, share, rq.evidence.label_embeddings is not None)
     adds = [(a.instance, u.frame, a.mask_id) for u in data.updates if u.result is not None
             for a in u.result.added if a.mask_id >= 0]
     if not adds or data.scene_root is None:
-        return rq.instances, frozenset()
-    return describe(rq.instances, rq.evidence, rq.grounder, load_scene(data.scene_root), adds)
+        return base, frozenset()
+    return describe(base, rq.evidence, rq.grounder, load_scene(data.scene_root), adds)
 
 
 class QueryPanel(Panel):
@@ -147,8 +158,8 @@ class QueryPanel(Panel):
             return rq
 
     def _added_query_object(self, s: "Session", rq):
-        """``rq`` with the instances the updates added described too (``added_instance_evidence``,
-        once per app), and the ids described."""
+        """``rq`` on the ids of the update chain, the instances the updates added described too
+        (``added_instance_evidence``, once per app), and the added ids described."""
         with _RQ_LOCK:
             hit = getattr(s.app, "_run_query_added", None)
             if hit is not None and hit[0] is rq:
@@ -164,9 +175,8 @@ class QueryPanel(Panel):
         rq = self._run_query_object(s)
         scored: frozenset[int] = frozenset()
         step = s.scene_step()
-        if step > 0 and any(u.result is not None and u.result.added for u in s.app.data.updates):
-            rq, scored = self._added_query_object(s, rq)
         if step > 0:  # only the instances of the scene shown, scored as `clutt3r query --step` scores them
+            rq, scored = self._added_query_object(s, rq)
             sc = s.scene()
             ids = [k for k in sc.present.tolist() if k not in sc.added_in or k in scored]
             res = rq.query_among(text, ids, step, f"scene after update {step}", int(sc.present.max(initial=-1)) + 1)

@@ -104,3 +104,51 @@ def test_a_corrected_chain_shows_the_commands_instances(tiny_run_dir, tiny_seg, 
     got, (req, _, _) = scene_grasp_request(d, 1, a), request_from_run(run, a, step=1)
     for x in ("points", "normals", "target"):
         np.testing.assert_array_equal(getattr(got, x), getattr(req, x))
+
+
+def test_the_query_tab_ranks_a_split_off_instance_as_clutt3r_query_does(tiny_run_dir, tiny_seg, tiny_scene, tmp_path,
+                                                                          monkeypatch):
+    """A split made in the Edit tab before the update: the split-off id is an instance of the scene
+    after it, ranked by the Query tab with the evidence ``clutt3r query --step`` gives it (its
+    source's, ``query.corrected_evidence``), the same scores for every id."""
+    import threading
+    from types import SimpleNamespace
+
+    import clutt3r_core.query as cq
+    import clutt3r_viewer.panels.query as qp
+    import clutt3r_viewer.panels.update_sources  # noqa: F401
+    from clutt3r_core.annotations import Annotations, Split
+    from clutt3r_core.update.state import apply_update, save_state, state_from_run
+    from clutt3r_viewer.loading import load_viewer_data
+    from clutt3r_viewer.scene_step import shown_scene
+    from tests.core.query._fake import FakeGrounder
+    from tests.viewer.test_update_sources import _fake_update
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run_dir, run)
+    counts = np.bincount(tiny_seg.instance[tiny_seg.instance >= 0], minlength=tiny_seg.num_instances)
+    a = int(np.argmax(counts))
+    pts = np.flatnonzero(tiny_seg.instance == a)
+    half = pts[tiny_seg.points[pts, 0] < np.median(tiny_seg.points[pts, 0])]
+    with Annotations.open(run, segmentation=tiny_seg, author="test") as ann:
+        ann.apply_op(Split(points=tuple(half.tolist()), source=a))
+    k = tiny_seg.num_instances  # the split-off id
+    s0 = state_from_run(run)
+    r1 = _fake_update(s0, 8, k=a, shift=0.05, removed=None, n_iter=3)
+    save_state(apply_update(s0, r1), run / "updates" / "01_frame_000008", r1)
+    d = load_viewer_data(run)
+    monkeypatch.setattr(qp, "language_backend_name", lambda: "fake-ground")
+    monkeypatch.setattr(cq, "create_grounder", lambda name=None: FakeGrounder())
+    state = SimpleNamespace(query="", query_best=-1, query_scores=None, color_mode="instance")
+    s = SimpleNamespace(app=SimpleNamespace(text_embedder=None, data=d), lock=threading.Lock(), state=state,
+                        changed=lambda c: None, scene_step=lambda: 1,
+                        scene=lambda: shown_scene(d, 1, np.arange(len(d.seg.points))))
+    panel = qp.QueryPanel()
+    panel.result = SimpleNamespace(content="")
+    rq = cq.RunQuery.open(run, grounder=FakeGrounder(), step=1, scene=tiny_run_dir.parent / "scene")
+    assert k in rq.scene.present.tolist()
+    for text in ("the red thing", "the blue thing"):
+        panel.run_query(s, text)
+        want = rq.query(text)
+        assert k in want.ranking and state.query_best == want.target, panel.result.content
+        np.testing.assert_allclose(state.query_scores, want.scores, rtol=0, atol=1e-6)
