@@ -98,6 +98,7 @@ class GraspsPanel(Panel):
         self.export.on_click(lambda ev: self._export(s))
         self._grasps = s.app.data.grasps
         self._target = -1 if self._grasps is None or not len(self._grasps) else int(self._grasps.instance[0])
+        self._step: int | None = None  # updates applied to the scene planned in (None: unknown / no updates)
         if self._grasps is not None:
             self.summary.content = f"{len(self._grasps)} grasps from the run's grasps.npz"
             self._draw(s)
@@ -168,6 +169,7 @@ class GraspsPanel(Panel):
                 req = request_from_segmentation(d.seg, k, views)
             gs = create_backend("grasp_planner").plan(req)
             self._grasps, self._target = gs.top(int(self.top.value)), k
+            self._step = step if d.updates else None  # recorded as clutt3r grasp records it
             note = gs.message or ("" if views else
                                   f"after update {step}: cloud-only collision checks (the initial views no longer "
                                   "show this scene)" if step > 0 else "no depth views: cloud-only collision checks")
@@ -222,6 +224,6 @@ class GraspsPanel(Panel):
         if run_dir is None or self._grasps is None:
             s.notify("Grasps", "nothing to export (plan first) or no run folder (read-only view)")
             return
-        self._grasps.save_json(run_dir / "grasps.json", self._target)
+        self._grasps.save_json(run_dir / "grasps.json", self._target, step=self._step)
         self._grasps.save_npz(run_dir / "grasps.npz")
         s.notify("Grasps", f"wrote {run_dir / 'grasps.json'} and grasps.npz")

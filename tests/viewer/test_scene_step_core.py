@@ -152,3 +152,42 @@ def test_the_query_tab_ranks_a_split_off_instance_as_clutt3r_query_does(tiny_run
         want = rq.query(text)
         assert k in want.ranking and state.query_best == want.target, panel.result.content
         np.testing.assert_allclose(state.query_scores, want.scores, rtol=0, atol=1e-6)
+
+
+def test_grasps_exported_after_an_update_record_the_step(tiny_run_dir, tiny_seg, tmp_path):
+    """The Grasps tab's export of grasps planned in the scene after update 2 records ``"step": 2``
+    in grasps.json, as ``clutt3r grasp --step 2`` does (a reader can tell where they were planned)."""
+    import json
+    import threading
+    from types import SimpleNamespace
+
+    import viser
+
+    import clutt3r_viewer.panels.update_sources  # noqa: F401
+    from clutt3r_viewer.loading import load_viewer_data
+    from clutt3r_viewer.panels.grasps import GraspsPanel
+    from clutt3r_viewer.scene_step import shown_scene
+    from clutt3r_viewer.state import SessionState
+    from tests.viewer._update_chain import build_chain
+    from tests.viewer.conftest import free_port
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run_dir, run)
+    k = build_chain(tiny_seg, run)
+    d = load_viewer_data(run, images=False)
+    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
+    notes = []
+    try:
+        s = SimpleNamespace(client=server, lock=threading.RLock(), state=SessionState(),
+                            app=SimpleNamespace(data=d, annotations=SimpleNamespace(run_dir=run)),
+                            notify=lambda title, body: notes.append(body), scene_step=lambda: 2,
+                            scene=lambda: shown_scene(d, 2, np.arange(len(d.seg.points))))
+        p = GraspsPanel()
+        p.build(s)
+        p.plan_for(s, k)  # the added cube: graspable (test_scene_step)
+        assert len(p._grasps) > 0, p.summary.content
+        p._export(s)
+        doc = json.loads((run / "grasps.json").read_text())
+        assert doc["target"] == k and doc["step"] == 2 and "wrote" in notes[-1]
+    finally:
+        server.stop()
