@@ -82,3 +82,25 @@ def build_chain(seg, run: Path, embedding: np.ndarray | None = None, frame: int 
                  + [InstanceUpdate(k, "removed", None, None, None)])
     save_state(apply_update(s2, r3), run / "updates" / "03_frame_000010", r3)
     return k
+
+
+def fake_query_panel(d, monkeypatch, step: int = 1):
+    """A Query panel over viewer data ``d`` showing the scene after ``step`` updates, with the
+    fake language backend (tests.core.query._fake): (panel, session stand-in, its state)."""
+    import threading
+    from types import SimpleNamespace
+
+    import clutt3r_core.query as cq
+    import clutt3r_viewer.panels.query as qp
+    from clutt3r_viewer.scene_step import shown_scene
+    from tests.core.query._fake import FakeGrounder
+
+    monkeypatch.setattr(qp, "language_backend_name", lambda: "fake-ground")
+    monkeypatch.setattr(cq, "create_grounder", lambda name=None: FakeGrounder())
+    state = SimpleNamespace(query="", query_best=-1, query_scores=None, color_mode="instance")
+    s = SimpleNamespace(app=SimpleNamespace(text_embedder=None, data=d), lock=threading.Lock(), state=state,
+                        changed=lambda c: None, scene_step=lambda: step,
+                        scene=lambda: shown_scene(d, step, np.arange(len(d.seg.points))))
+    panel = qp.QueryPanel()
+    panel.result = SimpleNamespace(content="")
+    return panel, s, state

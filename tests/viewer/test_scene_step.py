@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from clutt3r_core.errors import SceneError
-from tests.viewer._update_chain import N_ITER, NEW_RGB, SHIFT_0, SHIFT_K, build_chain, new_points
+from tests.viewer._update_chain import N_ITER, NEW_RGB, SHIFT_0, SHIFT_K, build_chain, fake_query_panel, new_points
 
 
 @pytest.fixture(scope="module")
@@ -144,27 +144,14 @@ def test_every_colour_layer_colours_the_added_instances(chain):
 def test_a_language_query_after_an_update_ranks_the_scene_then(tiny_run_dir, tiny_seg, tmp_path, monkeypatch):
     """The language backend describes the run's masks only: after update 1 the removed instance is
     not ranked (and cannot be the answer), the added one is listed as not ranked."""
-    import threading
-
-    import clutt3r_core.query as cq
-    import clutt3r_viewer.panels.query as qp
     import clutt3r_viewer.panels.update_sources  # noqa: F401
     from clutt3r_viewer.loading import load_viewer_data
-    from clutt3r_viewer.scene_step import shown_scene
-    from tests.core.query._fake import FakeGrounder
 
     run = tmp_path / "run"
     shutil.copytree(tiny_run_dir, run)
     k = build_chain(tiny_seg, run)
     d = load_viewer_data(run)  # with the scene's images: the backend describes their masks
-    monkeypatch.setattr(qp, "language_backend_name", lambda: "fake-ground")
-    monkeypatch.setattr(cq, "create_grounder", lambda name=None: FakeGrounder())
-    state = SimpleNamespace(query="", query_best=-1, query_scores=None, color_mode="instance")
-    s = SimpleNamespace(app=SimpleNamespace(text_embedder=None, data=d), lock=threading.Lock(), state=state,
-                        changed=lambda c: None, scene_step=lambda: 1,
-                        scene=lambda: shown_scene(d, 1, np.arange(len(d.seg.points))))
-    panel = qp.QueryPanel()
-    panel.result = SimpleNamespace(content="")
+    panel, s, state = fake_query_panel(d, monkeypatch)
     for text in ("red", "green", "blue", "yellow"):
         panel.run_query(s, f"the {text} thing")
         sc = state.query_scores
@@ -239,15 +226,9 @@ def test_the_language_backend_describes_an_added_instance_from_its_mask(tiny_run
     backend like a run instance with one mask: the reddest mask of a view, added, scores for "red"
     within 0.1 of the run instance that mask belongs to (the fake backend grounds by red/green/blue
     shares), far above its own "green" and "blue" scores."""
-    import threading
-
-    import clutt3r_core.query as cq
-    import clutt3r_viewer.panels.query as qp
     import clutt3r_viewer.panels.update_sources  # noqa: F401
     from clutt3r_core.language.colors import COLOR_WORDS, color_shares
     from clutt3r_viewer.loading import load_viewer_data
-    from clutt3r_viewer.scene_step import shown_scene
-    from tests.core.query._fake import FakeGrounder
 
     v = tiny_scene.initial_views[0]
     red = color_shares(v.rgb, v.masks.stack())[:, COLOR_WORDS.index("red")]
@@ -257,14 +238,7 @@ def test_the_language_backend_describes_an_added_instance_from_its_mask(tiny_run
     k = build_chain(tiny_seg, run, frame=int(v.frame), mask=mask)
     d = load_viewer_data(run)
     assert d.updates[0].result.added[0].mask_id == mask and d.updates[0].result.new_masks[0].instance == k
-    monkeypatch.setattr(qp, "language_backend_name", lambda: "fake-ground")
-    monkeypatch.setattr(cq, "create_grounder", lambda name=None: FakeGrounder())
-    state = SimpleNamespace(query="", query_best=-1, query_scores=None, color_mode="instance")
-    s = SimpleNamespace(app=SimpleNamespace(text_embedder=None, data=d), lock=threading.Lock(), state=state,
-                        changed=lambda c: None, scene_step=lambda: 1,
-                        scene=lambda: shown_scene(d, 1, np.arange(len(d.seg.points))))
-    panel = qp.QueryPanel()
-    panel.result = SimpleNamespace(content="")
+    panel, s, state = fake_query_panel(d, monkeypatch)
     nodes = d.trace.nodes
     owner = int(d.node_instance[np.flatnonzero((nodes.frame == v.frame) & (nodes.mask_id == mask))[0]])
     got = {}

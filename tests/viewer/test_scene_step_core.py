@@ -41,30 +41,19 @@ def test_the_query_tab_scores_the_scene_as_clutt3r_query_does(tiny_run_dir, tiny
     ``clutt3r query --step`` (``RunQuery.query_among``): the removed one is not scored and does not
     shift the others' (the name term is z-scored over the scene's instances only), the added one
     is described from its mask."""
-    import threading
-    from types import SimpleNamespace
 
     import clutt3r_core.query as cq
-    import clutt3r_viewer.panels.query as qp
     import clutt3r_viewer.panels.update_sources  # noqa: F401
     from clutt3r_viewer.loading import load_viewer_data
-    from clutt3r_viewer.scene_step import shown_scene
     from tests.core.query._fake import FakeGrounder
-    from tests.viewer._update_chain import build_chain
+    from tests.viewer._update_chain import build_chain, fake_query_panel
 
     v = tiny_scene.initial_views[0]
     run = tmp_path / "run"
     shutil.copytree(tiny_run_dir, run)
     k = build_chain(tiny_seg, run, frame=int(v.frame), mask=int(v.masks.ids[0]))
     d = load_viewer_data(run)
-    monkeypatch.setattr(qp, "language_backend_name", lambda: "fake-ground")
-    monkeypatch.setattr(cq, "create_grounder", lambda name=None: FakeGrounder())
-    state = SimpleNamespace(query="", query_best=-1, query_scores=None, color_mode="instance")
-    s = SimpleNamespace(app=SimpleNamespace(text_embedder=None, data=d), lock=threading.Lock(), state=state,
-                        changed=lambda c: None, scene_step=lambda: 1,
-                        scene=lambda: shown_scene(d, 1, np.arange(len(d.seg.points))))
-    panel = qp.QueryPanel()
-    panel.result = SimpleNamespace(content="")
+    panel, s, state = fake_query_panel(d, monkeypatch)
     rq = cq.RunQuery.open(run, grounder=FakeGrounder(), step=1, scene=tiny_run_dir.parent / "scene")
     for text in ("the red thing", "the blue thing", "yellow"):
         panel.run_query(s, text)
@@ -111,17 +100,13 @@ def test_the_query_tab_ranks_a_split_off_instance_as_clutt3r_query_does(tiny_run
     """A split made in the Edit tab before the update: the split-off id is an instance of the scene
     after it, ranked by the Query tab with the evidence ``clutt3r query --step`` gives it (its
     source's, ``query.corrected_evidence``), the same scores for every id."""
-    import threading
-    from types import SimpleNamespace
-
     import clutt3r_core.query as cq
-    import clutt3r_viewer.panels.query as qp
     import clutt3r_viewer.panels.update_sources  # noqa: F401
     from clutt3r_core.annotations import Annotations, Split
     from clutt3r_core.update.state import apply_update, save_state, state_from_run
     from clutt3r_viewer.loading import load_viewer_data
-    from clutt3r_viewer.scene_step import shown_scene
     from tests.core.query._fake import FakeGrounder
+    from tests.viewer._update_chain import fake_query_panel
     from tests.viewer.test_update_sources import _fake_update
 
     run = tmp_path / "run"
@@ -137,14 +122,7 @@ def test_the_query_tab_ranks_a_split_off_instance_as_clutt3r_query_does(tiny_run
     r1 = _fake_update(s0, 8, k=a, shift=0.05, removed=None, n_iter=3)
     save_state(apply_update(s0, r1), run / "updates" / "01_frame_000008", r1)
     d = load_viewer_data(run)
-    monkeypatch.setattr(qp, "language_backend_name", lambda: "fake-ground")
-    monkeypatch.setattr(cq, "create_grounder", lambda name=None: FakeGrounder())
-    state = SimpleNamespace(query="", query_best=-1, query_scores=None, color_mode="instance")
-    s = SimpleNamespace(app=SimpleNamespace(text_embedder=None, data=d), lock=threading.Lock(), state=state,
-                        changed=lambda c: None, scene_step=lambda: 1,
-                        scene=lambda: shown_scene(d, 1, np.arange(len(d.seg.points))))
-    panel = qp.QueryPanel()
-    panel.result = SimpleNamespace(content="")
+    panel, s, state = fake_query_panel(d, monkeypatch)
     rq = cq.RunQuery.open(run, grounder=FakeGrounder(), step=1, scene=tiny_run_dir.parent / "scene")
     assert k in rq.scene.present.tolist()
     for text in ("the red thing", "the blue thing"):
