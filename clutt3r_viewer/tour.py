@@ -190,8 +190,8 @@ def facts_of(data: ViewerData, story, view: int, node: int, event: int, pose_ste
     frame = story.post_frames[0] if story is not None and story.post_frames else -1
     removed = tuple(story.removed) if story is not None else ()
     displaced = tuple(story.displaced) if story is not None else ()
-    removed_text = (f"I{', I'.join(map(str, removed))} {'is' if len(removed) == 1 else 'are'} gone (grey, like the "
-                    "table; the gripper stays where it grasped), the others are kept." if removed
+    removed_text = (f"I{', I'.join(map(str, removed))} {'is' if len(removed) == 1 else 'are'} gone (drawn pale where "
+                    "it was last seen; the gripper stays where it grasped), the others are kept." if removed
                     else "No instance was found removed.")
     if story is not None and story.true_removed >= 0 and story.true_removed not in removed:
         removed_text += f" (The object taken away was I{story.true_removed}: the update missed it.)"
