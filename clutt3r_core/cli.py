@@ -11,9 +11,8 @@ with status 2, like tyro's own errors for bad arguments. ``--debug`` (anywhere o
 command line) or ``CLUTT3R_DEBUG=1`` prints the traceback too. Library calls keep
 raising the typed errors; only this entry point turns them into a line.
 
-``clutt3r segment`` starts before the others (issue 13, whole-command time): its scene starts
-loading before tyro is imported, a plain ``SCENE --out RUN [--preset P]`` runs without tyro's
-parser, and ``main()`` called without an argument list (the ``clutt3r`` script, ``python -m``)
+``clutt3r segment`` starts before the others (issue 13, whole-command time): a plain
+``SCENE --out RUN [--preset P]`` runs without tyro's parser, and ``main()`` called without an argument list (the ``clutt3r`` script, ``python -m``)
 ends the process when the run is written, without the interpreter's teardown
 (``_segment_without_parser``, ``_end_process``).
 """
@@ -140,15 +139,13 @@ def _one_blas_thread() -> None:
 
 
 def _segment_without_parser(args: list[str]) -> bool:
-    """``clutt3r segment``'s start (issue 13, whole-command time): its scene begins loading on a
-    thread (``commands.scene_prefetch``), and the plain command lines (``SCENE --out RUN
-    [--preset P]``, ``commands.segment_run.plain_arguments``) run without importing tyro and
-    building its parser (~0.14 s of CPU). Returns whether the command ran; False: tyro parses
-    ``args`` as for any command (the prefetched scene is used if it is tyro's SCENE)."""
-    from clutt3r_core.commands import scene_prefetch
+    """``clutt3r segment``'s start (issue 13, whole-command time): the plain command lines
+    (``SCENE --out RUN [--preset P]``, ``commands.segment_run.plain_arguments``) run without
+    importing tyro and building its parser (~0.14 s of CPU). Returns whether the command ran;
+    False: tyro parses ``args`` as for any command. (Loading the scene on a thread while the
+    command imports was measured and removed: docs/benchmark.md "Session 7".)"""
     from clutt3r_core.commands.segment_run import plain_arguments, run_segment
 
-    scene_prefetch.start(args)
     plain = plain_arguments(args)
     if plain is None:
         return False
@@ -241,11 +238,6 @@ def main(argv: list[str] | None = None) -> None:
             raise
         _fail("interrupted")
         sys.exit(130)
-    finally:
-        if args[:1] == ["segment"]:  # its scene, begun before parsing and not taken: not for a later call
-            from clutt3r_core.commands import scene_prefetch
-
-            scene_prefetch.discard()
 
 
 if __name__ == "__main__":

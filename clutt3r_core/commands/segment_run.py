@@ -66,7 +66,6 @@ def run_segment(scene: Path, out: Path, config: SegmentConfig, mask_options: Mas
     from rich.console import Console
     from rich.markup import escape
 
-    from clutt3r_core.commands import scene_prefetch
     from clutt3r_core.io import load_scene
     from clutt3r_core.io.images import write_png
 
@@ -78,11 +77,8 @@ def run_segment(scene: Path, out: Path, config: SegmentConfig, mask_options: Mas
     with ThreadPoolExecutor(1) as pool:
         preparing = pool.submit(_prepare, config.embedder)
         with console.status(f"loading {scene}"):
-            # the CLI may have begun loading it before parsing (commands.scene_prefetch); the
-            # ground truth is never read here (it does not enter the segmentation)
-            sc = scene_prefetch.take(scene)
-            if sc is None:
-                sc = load_scene(scene, load_gt=False)
+            # the ground truth is never read here (it does not enter the segmentation)
+            sc = load_scene(scene, load_gt=False)
         segment, save_run, overview_sheet, embedder = preparing.result()  # re-raises its error
     if mask_options is None:
         masks, choice = "auto", "auto"

@@ -27,8 +27,6 @@ def load_scene(path: str | Path, *, load_gt: bool = True) -> Scene:
     instance maps and labelled points cost ~0.05 s of CPU, a BOP scene's visible masks and
     back-projection far more; issue 13).
     """
-    # the detection below is repeated by commands.scene_prefetch._is_scene_folder, which guesses
-    # the scene before this package (numpy, cv2: ~0.25 s) is imported: a layout added here goes there too
     p = Path(path)
     if p.is_file() and p.name in ("transforms.json", "scene_camera.json"):
         p = p.parent
