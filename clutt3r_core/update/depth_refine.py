@@ -37,14 +37,14 @@ demands a larger colour gain for a half turn that maps the stored points onto th
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from clutt3r_core.normals import _one_openmp_thread
 from clutt3r_core.scene import Camera
-from clutt3r_core.update.depth import RegistrationModel, _depth_at
+from clutt3r_core.update.depth import RegistrationModel, _consistency, _depth_at
 
 __all__ = ["Refinement", "flip_check", "half_turn_symmetric", "pose_quality", "refine_registration",
            "refined_registration"]
@@ -137,8 +137,6 @@ def pose_quality(model: RegistrationModel, T: np.ndarray, camera: Camera, depth:
     """The refinement's keep criterion, no ground truth: the free-space consistency
     (``depth._consistency``, 0-1) of ``model`` moved by ``T``, minus ``photo_weight`` x its mean
     colour error (0-1) on the observed surface when ``rgb`` and the model's colours are given."""
-    from clutt3r_core.update.depth import _consistency
-
     cons, photo = _consistency(model.points, T, camera, depth, tol, model.colors, rgb)
     return cons - photo_weight * photo if rgb is not None and np.isfinite(photo) else cons
 
@@ -158,10 +156,6 @@ def refined_registration(reg, model: RegistrationModel, scene: np.ndarray, camer
     partial or its normals leave a direction free (a can's axis tilts, a box's faces slide),
     and the free space and the colours the refinement does not use tell such a pose (measured
     on the tuning pairs 300-900: docs/update.md, "Session 7: refinement regressions")."""
-    from dataclasses import replace
-
-    from clutt3r_core.update.depth import _consistency
-
     ref = refine_registration(model, scene, reg.T_world, camera, depth, iterations=iterations,
                               radius_start=radius_start, radius_end=radius_end)
     if not len(ref.path):
@@ -215,14 +209,8 @@ def flip_check(reg, model: RegistrationModel, scene: np.ndarray, camera: Camera,
     cloud's different fit, not the print (easy_300: 0.035 lower for 0.3 -> 4.6 deg up to
     symmetry; the printed box of the tests: 0.129; docs/update.md, "Session 7: refinement
     regressions")."""
-    from dataclasses import replace
-
-    from clutt3r_core.update.depth import _consistency
-
     if model.colors is None or rgb is None:
         return reg, False
-    from scipy.spatial.transform import Rotation as _R
-
     p0 = _consistency(model.points, reg.T_world, camera, depth, tol, model.colors, rgb)[1]
     if not np.isfinite(p0):
         return reg, False
@@ -231,7 +219,7 @@ def flip_check(reg, model: RegistrationModel, scene: np.ndarray, camera: Camera,
     best, best_p = reg, p0
     for axis in V.T:
         S = np.eye(4)
-        S[:3, :3] = _R.from_rotvec(axis * np.pi).as_matrix()
+        S[:3, :3] = Rotation.from_rotvec(axis * np.pi).as_matrix()
         S[:3, 3] = c - S[:3, :3] @ c  # the half turn about the model's own axis, in its old pose
         margin = photo_margin
         if symmetric is not None and half_turn_symmetric(model, S, symmetric[0]):
