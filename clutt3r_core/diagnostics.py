@@ -50,6 +50,7 @@ WARNING_CODES: dict[str, str] = {
     "depth-invalid": "most of a view's depth is holes or out of range",
     "view-isolated": "a view sees almost nothing that another view sees",
     "view-no-masks": "a view has no mask candidate",
+    "updates-unreadable": "the run's scene updates could not be read; it is shown without them",
 }
 """Every warning code and what it means (docs/robustness.md lists them too)."""
 

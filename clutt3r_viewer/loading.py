@@ -13,7 +13,11 @@ chooses ``--scene NEW_FOLDER`` or ``--no-images`` (``images=False``: view withou
 
 Hooks for data the core does not produce yet:
 - ``register_update_loader(fn)``: ``fn(run_dir, scene) -> tuple[UpdateFrame, ...]`` adds
-  post-interaction frames to replay (the Updates tab appears only when some exist).
+  post-interaction frames to replay (the Updates tab appears only when some exist). A loader
+  that cannot read the run's updates (a ``Clutt3rError``: an unreadable ``update.json``, a
+  correction log the chain was computed from that is gone or rewritten) does not keep the run
+  from opening: it is shown without them, with an ``updates-unreadable`` run warning naming
+  the file and the problem (the run, its edits and its update folders are left as they are).
 - grasps: ``grasps.npz`` in the run folder (``GraspSet.load``); the Grasps tab appears only then.
 """
 
@@ -49,10 +53,18 @@ def register_update_loader(fn: UpdateLoader) -> UpdateLoader:
     return fn
 
 
-def load_updates(run_dir: Path | None, scene: Scene | None) -> tuple[UpdateFrame, ...]:
+def load_updates(run_dir: Path | None, scene: Scene | None,
+                 problems: list[str] | None = None) -> tuple[UpdateFrame, ...]:
+    """Every registered loader's frames. With ``problems`` (a list), a loader's ``Clutt3rError``
+    is appended to it (one line) and its frames left out; without, it is raised."""
     out: list[UpdateFrame] = []
     for fn in _UPDATE_LOADERS:
-        out.extend(fn(run_dir, scene))
+        try:
+            out.extend(fn(run_dir, scene))
+        except Clutt3rError as e:
+            if problems is None:
+                raise
+            problems.append(" ".join(str(e).split()))
     return tuple(out)
 
 
@@ -136,7 +148,16 @@ def load_viewer_data(run_dir: Path, scene: Scene | Path | None = None, images: b
 
         scene = with_run_masks(scene, run_dir)
     grasps = GraspSet.load(run_dir / "grasps.npz") if (run_dir / "grasps.npz").is_file() else None
-    return build_viewer_data(seg, scene, grasps=grasps, updates=load_updates(run_dir, scene))
+    problems: list[str] = []
+    updates = load_updates(run_dir, scene, problems)
+    if problems:  # the run opens; what could not be read is said above the tabs (module docstring)
+        from dataclasses import replace
+
+        from clutt3r_core.diagnostics import RunWarning
+
+        seg = replace(seg, warnings=tuple(seg.warnings) + tuple(
+            RunWarning("updates-unreadable", f"{p}; the run is shown without its updates") for p in problems))
+    return build_viewer_data(seg, scene, grasps=grasps, updates=updates)
 
 
 def text_embedder_for(data: ViewerData, override=None):

@@ -57,3 +57,36 @@ def test_updates_tab_follows_the_corrected_chain_and_flags_later_edits(tiny_run_
     ann.undo()
     assert stale_text(d, ann.current.instance) is None  # back to the chain's labels
     ann.close()
+
+
+def test_a_run_whose_update_chain_cannot_be_read_opens_without_it_and_says_why(tiny_run_dir, tiny_seg, tmp_path):
+    """The correction log a corrected chain was computed from is gone (or an update.json is
+    broken): the viewer still opens the run, without its updates, with one ``updates-unreadable``
+    run warning naming the file; nothing on disk is changed (the user's updates stay)."""
+    import clutt3r_viewer.panels.update_sources  # noqa: F401  (registers the loader)
+    from clutt3r_viewer.loading import load_viewer_data
+    from clutt3r_viewer.panels.warnings import warnings_markdown
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run_dir, run)
+    a, b, _ = _two(tiny_seg)
+    with Annotations.open(run, segmentation=tiny_seg, author="test") as ann:
+        ann.apply_op(Merge(into=a, other=b))
+    s0 = state_from_run(run)
+    r1 = _fake_update(s0, 8, k=a, shift=0.05, removed=None, n_iter=3)
+    save_state(apply_update(s0, r1), run / "updates" / "01_frame_000008", r1)
+    assert len(load_viewer_data(run, images=False).updates) == 1
+
+    before = sorted(p.relative_to(run) for p in (run / "updates").rglob("*"))
+    shutil.move(run / "corrections", tmp_path / "corrections")  # the chain's labelling cannot be rebuilt
+    d = load_viewer_data(run, images=False)
+    assert d.updates == ()
+    w = [x for x in d.seg.warnings if x.code == "updates-unreadable"]
+    assert len(w) == 1 and "ops.jsonl" in w[0].message and "shown without its updates" in w[0].message
+    assert "updates-unreadable" in warnings_markdown(d.seg.warnings)
+    assert sorted(p.relative_to(run) for p in (run / "updates").rglob("*")) == before  # nothing removed
+
+    shutil.move(tmp_path / "corrections", run / "corrections")
+    (run / "updates" / "01_frame_000008" / "update.json").write_text("{ not json")
+    d = load_viewer_data(run, images=False)
+    assert d.updates == () and any("update.json" in x.message for x in d.seg.warnings)
