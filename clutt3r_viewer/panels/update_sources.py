@@ -143,12 +143,14 @@ class UpdatePoseIterations(PoseIterations):
         added_from: (A,) int64 index in ``data.updates`` of the update that added each point.
         added_until: (A,) int64 index of the update that removed it (len(updates): never).
         step_update: (T,) int64 index in ``data.updates`` of the update step t replays.
+        added_id: (A,) int32 instance id of every added point.
     """
 
     n_run: int = 0
     added_from: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     added_until: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     step_update: np.ndarray = field(default_factory=lambda: np.zeros(1, np.int64))
+    added_id: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
 
     frames: tuple[int, ...] = ()
     """The frame of every update of the chain (``data.updates`` order), for the step's text."""
@@ -168,13 +170,6 @@ class UpdatePoseIterations(PoseIterations):
         idx = self.n_run + on
         inst = np.asarray(self.added_id, np.int32)[on]
         return self.points(n, idx), inst, self.colors(n, idx)
-
-    @property
-    def added_id(self) -> np.ndarray:
-        """(A,) int32 instance id of every added point."""
-        return self._added_id
-
-    _added_id: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
 
 
 def update_pose_events(data) -> PoseIterations | None:
@@ -232,7 +227,7 @@ def update_pose_events(data) -> PoseIterations | None:
         instance=np.concatenate(a_inst), poses=np.stack(poses), residual=np.stack(resid), points0=np.concatenate(pts),
         name="scene updates: pose iterations", context_rgb=np.concatenate(cols), n_run=len(seg.points),
         added_from=cat(a_from, np.int64), added_until=cat(a_until, np.int64),
-        step_update=np.asarray(step_update, np.int64), _added_id=cat(a_id, np.int32),
+        step_update=np.asarray(step_update, np.int64), added_id=cat(a_id, np.int32),
         frames=tuple(int(u.frame) for u in data.updates))
 
 
