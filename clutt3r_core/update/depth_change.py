@@ -431,6 +431,13 @@ def _register_all(state, view: View, config: UpdateConfig, ks: list[int], target
     registrations run)."""
     cc, cam = config.change, view.camera
     found, n_reg = [], 0
+
+    def passes(r: Registration, model: np.ndarray, target: np.ndarray, min_iou: float) -> float | None:
+        # every accept_* test (pick, alternative, refinement, half turn): the IoU when it passes, else None
+        if r.fitness < cc.accept_fitness or r.consistency < cc.accept_consistency:
+            return None
+        iou = fit_iou(model, r.T_world, cam, state.voxel_size, occ, target)
+        return iou if iou >= min_iou else None
     for k in ks:
         sel = state.instance == k
         model, colors = state.points[sel].astype(np.float64), state.colors[sel]
@@ -462,10 +469,7 @@ def _register_all(state, view: View, config: UpdateConfig, ks: list[int], target
             # acceptance test (ChangeConfig.registration_alternatives; the pick's result is unchanged
             # when it passes)
             for reg in (reg,) + reg.alternatives:
-                if reg.fitness < cc.accept_fitness or reg.consistency < cc.accept_consistency:
-                    continue
-                iou = fit_iou(model, reg.T_world, cam, state.voxel_size, occ, target)
-                if iou >= accept_iou(k):
+                if (iou := passes(reg, model, target, accept_iou(k))) is not None:
                     break
             else:
                 continue
@@ -477,10 +481,8 @@ def _register_all(state, view: View, config: UpdateConfig, ks: list[int], target
                                            radius_start=config.pose.registration_refine_radius[0],
                                            radius_end=config.pose.registration_refine_radius[1],
                                            rgb=view.rgb, keep=config.pose.registration_refine_keep)
-                if ref is not reg and ref.fitness >= cc.accept_fitness and ref.consistency >= cc.accept_consistency:
-                    iou_ref = fit_iou(model, ref.T_world, cam, state.voxel_size, occ, target)
-                    if iou_ref >= accept_iou(k):
-                        reg, iou = ref, iou_ref
+                if ref is not reg and (iou_ref := passes(ref, model, target, accept_iou(k))) is not None:
+                    reg, iou = ref, iou_ref
             if config.pose.registration_flip_check and view.rgb is not None:
                 flip, flipped = flip_check(reg, prepared, pts, cam, view.depth, view.rgb, cc.in_place_tol,
                                            score_margin=config.pose.registration_flip_margins[0],
@@ -489,10 +491,8 @@ def _register_all(state, view: View, config: UpdateConfig, ks: list[int], target
                                            radius_start=config.pose.registration_refine_radius[0],
                                            radius_end=config.pose.registration_refine_radius[1],
                                            symmetric=config.pose.registration_flip_symmetric)
-                if flipped and flip.fitness >= cc.accept_fitness and flip.consistency >= cc.accept_consistency:
-                    iou_flip = fit_iou(model, flip.T_world, cam, state.voxel_size, occ, target)
-                    if iou_flip >= accept_iou(k):
-                        reg, iou = flip, iou_flip
+                if flipped and (iou_flip := passes(flip, model, target, accept_iou(k))) is not None:
+                    reg, iou = flip, iou_flip
             rank = reg.score * iou
             if cc.fit_colour_weight and view.rgb is not None:
                 # two objects of one shape fit one target alike (easy_501: a baseball and an
