@@ -104,9 +104,9 @@ class DepthChanges:
             without one are removed; hidden ones without one are occluded).
         explained: (H, W) bool pixels showing in-place instances.
         registrations: number of registrations run (cost).
-        refused: id -> why a fit that passed the ``accept_*`` tests was refused for lack of
-            evidence that the object is there ("plane-colour": ``ChangeConfig.fit_plane_colour``,
-            "owner-appearance": ``ChangeConfig.fit_owner_appearance``), the last one refused.
+        refused: id -> why its last fit that passed the ``accept_*`` tests was refused for lack of evidence that
+            the object is there: "plane-colour" (``ChangeConfig.fit_plane_colour``), "owner-appearance" or
+            "neighbour-appearance" (``ChangeConfig.fit_owner_appearance``; ``depth_evidence.FitEvidence``).
     """
 
     place: PlaceCheck
