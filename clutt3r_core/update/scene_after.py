@@ -232,23 +232,20 @@ def scene_after(run_dir: str | Path, step: int | None = None, seg=None,
     hist = st.history[:step]
     if len(hist) != step:
         raise SceneFileError(dirs[step - 1] / "state.json", f"history has {len(hist)} updates, expected {step}")
+    from clutt3r_core.update.run_labels import LOG_NAME, run_labels, run_share, stale_note
+
     stale, share = None, None
     n_run = seg.num_instances
     ids0 = np.arange(n_run)
     if st.labels is not None and st.labels.entries > 0:
-        from clutt3r_core.update.run_labels import run_labels, run_share, stale_note
-
         lab = run_labels(run_dir, seg, entries=st.labels.entries)  # the labelling the chain was computed from
         if lab.source.labels_sha256 != st.labels.labels_sha256:
-            raise SceneFileError(run_dir / "corrections" / "ops.jsonl",
+            raise SceneFileError(run_dir / LOG_NAME,
                                  f"replaying its first {st.labels.entries} entries does not give the labels "
                                  f"{dirs[0].name} was computed from (the log was rewritten?)")
         share = run_share(lab.instance, seg.instance, lab.num_ids, seg.num_instances)
         inst0, n_run, ids0 = lab.instance, lab.num_ids, lab.ids
-        stale = stale_note(run_dir, seg)
-    elif (run_dir / "corrections" / "ops.jsonl").is_file():
-        from clutt3r_core.update.run_labels import stale_note
-
+    if (run_dir / LOG_NAME).is_file():  # always there for a corrected chain (run_labels above needs it)
         stale = stale_note(run_dir, seg)
     removed = {k: (h.step, h.frame) for h in hist for k in h.removed}
     added_at = {k: (h.step, h.frame) for h in hist for k in h.added}
