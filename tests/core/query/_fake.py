@@ -4,6 +4,11 @@ It tests the plumbing (evidence, cache, CLI), not language understanding."""
 
 from __future__ import annotations
 
+import json
+import shutil
+from contextlib import contextmanager
+from pathlib import Path
+
 import numpy as np
 
 from clutt3r_core.language.base import MaskEvidence
@@ -46,3 +51,25 @@ class FakeGrounder:
 
     def label_embeddings(self):
         return np.eye(3, dtype=np.float32)
+
+
+def copy_run(run: Path, scene_root: Path, dst: Path) -> Path:
+    """A copy of the run folder ``run`` at ``dst`` whose ``run.json`` still records the scene
+    ``scene_root / "scene"`` (absolute), so the copy finds its images."""
+    shutil.copytree(run, dst)
+    info = json.loads((dst / "run.json").read_text())
+    info["scene"] = str((scene_root / "scene").resolve())
+    (dst / "run.json").write_text(json.dumps(info))
+    return dst
+
+
+@contextmanager
+def fake_ground_registered():
+    """``FakeGrounder`` registered as the text embedder "fake-ground" for the block."""
+    from clutt3r_core.registry import REGISTRY
+
+    REGISTRY.register("text_embedder", "fake-ground", FakeGrounder)
+    try:
+        yield
+    finally:
+        REGISTRY.unregister("text_embedder", "fake-ground")

@@ -16,13 +16,12 @@ from tests.core.update.test_corrections_update import FAST, _edit, _largest
 
 def test_a_corrected_chain_with_an_added_instance_keeps_the_corrected_rows(tmp_path):
     from clutt3r_core.query import RunQuery
-    from clutt3r_core.registry import REGISTRY
     from clutt3r_core.synth import write_synth_scene
     from clutt3r_core.update.newobj import next_instance_id
     from clutt3r_core.update.state import apply_update, save_state, state_from_run
     from clutt3r_core.update.types import InstanceUpdate, NewInstance, NewMask
     from clutt3r_core.update.update import update_scene
-    from tests.core.query._fake import FakeGrounder
+    from tests.core.query._fake import fake_ground_registered
 
     seg, scene = tiny_segmentation(), tiny_scene()
     run = save_run(seg, tmp_path / "run", scene_root=write_synth_scene(scene, tmp_path / "scene", contact_sheet=False))
@@ -41,12 +40,9 @@ def test_a_corrected_chain_with_an_added_instance_keeps_the_corrected_rows(tmp_p
                   added=(NewInstance(new, mask, p, np.full((20, 3), 200, np.uint8), None),),
                   change_masks=np.concatenate([res.change_masks, np.zeros_like(res.change_masks[:1])]))
     save_state(apply_update(st, res), run / "updates" / f"01_frame_{view.frame:06d}", res)
-    REGISTRY.register("text_embedder", "fake-ground", FakeGrounder)
-    try:
+    with fake_ground_registered():
         rq = RunQuery.open(run, backend="fake-ground")
         r = rq.query("orange")
-    finally:
-        REGISTRY.unregister("text_embedder", "fake-ground")
     assert new in rq.described and new in r.ranking and k in r.ranking
     e = rq.instances
     np.testing.assert_allclose(e.colors[k], e.colors[a], atol=1e-6)  # the split part: its source's, as without adds

@@ -5,7 +5,6 @@ backend is exercised in tests/core/language/test_lite.py."""
 from __future__ import annotations
 
 import json
-import shutil
 
 import numpy as np
 import pytest
@@ -14,11 +13,10 @@ from clutt3r_core.commands.query import query_command
 from clutt3r_core.errors import Clutt3rError, SceneFileError
 from clutt3r_core.query import RunQuery
 from clutt3r_core.query.evidence import CACHE_NAME
-from clutt3r_core.registry import REGISTRY
 from clutt3r_core.runs import save_run
 from clutt3r_core.synth import write_synth_scene
 from tests.core._tiny_run import tiny_scene, tiny_segmentation
-from tests.core.query._fake import FakeGrounder
+from tests.core.query._fake import FakeGrounder, copy_run, fake_ground_registered
 
 
 @pytest.fixture(scope="module")
@@ -32,20 +30,13 @@ def tiny_run(tmp_path_factory):
 @pytest.fixture
 def run_copy(tiny_run, tmp_path):
     root, run = tiny_run
-    dst = tmp_path / "run"
-    shutil.copytree(run, dst)
-    # keep the recorded scene reachable from the copy
-    info = json.loads((dst / "run.json").read_text())
-    info["scene"] = str((root / "scene").resolve())
-    (dst / "run.json").write_text(json.dumps(info))
-    return dst
+    return copy_run(run, root, tmp_path / "run")
 
 
 @pytest.fixture
 def fake_registered():
-    REGISTRY.register("text_embedder", "fake-ground", FakeGrounder)
-    yield
-    REGISTRY.unregister("text_embedder", "fake-ground")
+    with fake_ground_registered():
+        yield
 
 
 def test_evidence_is_cached_and_reused(run_copy):

@@ -184,9 +184,8 @@ def test_query_on_a_corrected_chain_ranks_the_corrected_ids(tmp_path):
     """A split before the update: the split-off id (not a run instance) is ranked with the
     evidence of the run instance it came from; the merged-away id is not ranked."""
     from clutt3r_core.query import RunQuery
-    from clutt3r_core.registry import REGISTRY
     from clutt3r_core.synth import write_synth_scene
-    from tests.core.query._fake import FakeGrounder
+    from tests.core.query._fake import FakeGrounder, fake_ground_registered
 
     seg, scene = tiny_segmentation(), tiny_scene()
     run = save_run(seg, tmp_path / "run", scene_root=write_synth_scene(scene, tmp_path / "scene", contact_sheet=False))
@@ -215,12 +214,9 @@ def test_query_on_a_corrected_chain_ranks_the_corrected_ids(tmp_path):
                       (NewMask(m, 100, new),), np.zeros((len(recs) + 1, 4, 4), bool), np.full((4, 4), -1, np.int32),
                       0.1, added=(NewInstance(new, m, cube, np.full((200, 3), 200, np.uint8), None),))
     save_state(apply_update(s1, r2), run / "updates" / "02_frame_000000", r2)
-    REGISTRY.register("text_embedder", "fake-ground", FakeGrounder)
-    try:
+    with fake_ground_registered():
         rq = RunQuery.open(run, backend="fake-ground")
         r = rq.query("orange")
-    finally:
-        REGISTRY.unregister("text_embedder", "fake-ground")
     assert new in rq.described and new > k
     assert sorted(r.ranking) == sorted(st.instance_ids.tolist() + [new]) and k in r.ranking and b not in r.ranking
     e = rq.instances

@@ -26,7 +26,6 @@ from clutt3r_core.commands.query import query_command
 from clutt3r_core.errors import Clutt3rError, SceneError
 from clutt3r_core.language.colors import COLOR_WORDS, color_shares
 from clutt3r_core.query import RunQuery
-from clutt3r_core.registry import REGISTRY
 from clutt3r_core.runs import save_run
 from clutt3r_core.synth import write_synth_scene
 from clutt3r_core.update import InstanceUpdate, UpdateResult
@@ -35,7 +34,7 @@ from clutt3r_core.update.scene_after import compose_motions, scene_after
 from clutt3r_core.update.state import apply_update, save_state, state_from_segmentation
 from clutt3r_core.update.types import NewInstance, NewMask
 from tests.core._tiny_run import tiny_scene, tiny_segmentation
-from tests.core.query._fake import FakeGrounder
+from tests.core.query._fake import FakeGrounder, copy_run, fake_ground_registered
 
 SHIFT_1 = np.array([0.06, 0.0, 0.0])
 SHIFT_2 = np.array([0.0, 0.04, 0.0])
@@ -101,19 +100,13 @@ def chain(tmp_path_factory):
 @pytest.fixture
 def run_copy(chain, tmp_path):
     root, run, *_ = chain
-    dst = tmp_path / "run"
-    shutil.copytree(run, dst)
-    info = json.loads((dst / "run.json").read_text())
-    info["scene"] = str((root / "scene").resolve())
-    (dst / "run.json").write_text(json.dumps(info))
-    return dst
+    return copy_run(run, root, tmp_path / "run")
 
 
 @pytest.fixture
 def fake_registered():
-    REGISTRY.register("text_embedder", "fake-ground", FakeGrounder)
-    yield
-    REGISTRY.unregister("text_embedder", "fake-ground")
+    with fake_ground_registered():
+        yield
 
 
 def test_scene_after_leaves_out_moves_and_adds(chain):
