@@ -53,7 +53,7 @@ from clutt3r_core.normals import _one_openmp_thread, estimate_normals, knn_tree
 from clutt3r_core.scene import Camera
 from clutt3r_core.update.project import splat
 
-__all__ = ["PlaceCheck", "place_check", "explained_pixels", "mask_points", "Registration", "register",
+__all__ = ["PlaceCheck", "place_check", "explained_pixels", "mask_points", "Registration", "register", "model_subset",
            "start_rotations", "support_plane", "unexplained_regions"]
 
 
@@ -356,13 +356,21 @@ class RegistrationModel:
                              "must both be (M, 3)")
 
 
+def model_subset(n: int, max_model_points: int = 1500, seed: int = 0) -> np.ndarray | None:
+    """Sorted indices of the stored points a registration uses (``prepare_model``), None when all
+    ``n`` are used: the same draw wherever the model's points are needed without its normals."""
+    if n <= max_model_points:
+        return None
+    return np.sort(np.random.default_rng(seed).choice(n, max_model_points, replace=False))
+
+
 def prepare_model(model: np.ndarray, colors: np.ndarray | None = None, max_model_points: int = 1500,
                   seed: int = 0) -> RegistrationModel:
     """``register``'s per-instance work (subset, k-d tree, normals), done once: registering one
     instance to several targets with it gives the same results as passing the points each time."""
     model = np.asarray(model, np.float64)
-    if len(model) > max_model_points:
-        keep_idx = np.sort(np.random.default_rng(seed).choice(len(model), max_model_points, replace=False))
+    keep_idx = model_subset(len(model), max_model_points, seed)
+    if keep_idx is not None:
         model = model[keep_idx]
         colors = None if colors is None else np.asarray(colors)[keep_idx]
     model = np.ascontiguousarray(model)

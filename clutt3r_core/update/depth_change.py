@@ -49,7 +49,7 @@ from scipy.spatial import cKDTree
 from clutt3r_core.scene import View
 from clutt3r_core.update.associate import Association, project_depth
 from clutt3r_core.update.depth import (PlaceCheck, Registration, _consistency, _on_or_in_front, explained_pixels,
-                                       mask_points, place_check, prepare_model, register, start_rotations,
+                                       mask_points, model_subset, place_check, prepare_model, register, start_rotations,
                                        support_plane, unexplained_regions)
 from clutt3r_core.update.depth_evidence import FitEvidence
 from clutt3r_core.update.depth_refine import flip_check, refined_registration
@@ -237,8 +237,8 @@ def _verify_in_place(state, view: View, config: UpdateConfig, assoc: Association
             continue
         sel = state.instance == k
         model = state.points[sel].astype(np.float64)
-        sub = model if len(model) <= 1500 else model[  # prepare_model's subset, without its normals' cost
-            np.sort(np.random.default_rng(0).choice(len(model), 1500, False))]
+        keep = model_subset(len(model))  # prepare_model's subset, without its normals' cost
+        sub = model if keep is None else model[keep]
         if _consistency(sub, np.eye(4), cam, depth, cc.in_place_tol)[0] >= cc.accept_consistency:
             continue  # the unmoved points pass the free-space test
         others = np.array(sorted(in_place - {k}), np.int32)
