@@ -80,10 +80,10 @@ def update_command(
     else:
         run_dir = run
         state, parent = latest_state(run)
-    note = stale_note(run_dir)
+    note = stale_note(run_dir, frame=frame)
     if note is not None:
         # extending it would mix two labellings' ids in one chain
-        raise Clutt3rError(note.replace("--frame F", f"--frame {frame}" if frame is not None else "--frame F"))
+        raise Clutt3rError(note)
     if image is not None:
         if masks is None or camera is None:
             raise SystemExit("clutt3r update: --image needs --masks DIR and --camera FILE")

@@ -202,10 +202,10 @@ def labels_change(then: np.ndarray, now: np.ndarray) -> str | None:
     return "; ".join(what)
 
 
-def stale_note(run_dir: str | Path, seg=None) -> str | None:
+def stale_note(run_dir: str | Path, seg=None, frame: int | None = None) -> str | None:
     """One line when the run's update chain was computed from another labelling than the one its
     corrections give now (corrections made after the updates); None when it is current or there
-    is no chain."""
+    is no chain. ``frame``: the frame the recompute command names (None: ``F``)."""
     run_dir = Path(run_dir)
     rec = chain_source(run_dir)
     if rec is None:
@@ -220,7 +220,8 @@ def stale_note(run_dir: str | Path, seg=None) -> str | None:
         return None
     what = labels_change(then.instance, now.instance)
     n = len(list((run_dir / "updates").glob("*/state.json")))
+    f = "F" if frame is None else frame
     return (f"STALE: the {n} update(s) in {run_dir / 'updates'} were computed from {then.source.describe()}; "
             f"the corrections now give {now.source.describe()} ({what}), so their instance ids are "
-            f"the old labelling's. Recompute: clutt3r update {run_dir} --frame F --recompute "
+            f"the old labelling's. Recompute: clutt3r update {run_dir} --frame {f} --recompute "
             f"(moves {first.parent.name}/ aside to updates.stale-<time>/, deletes nothing)")

@@ -130,6 +130,7 @@ def test_correction_after_an_update_is_flagged_stale(run, base):
     assert note is not None and "\n" not in note
     assert note.startswith("STALE") and f"no longer instances: I{b}" in note and "--recompute" in note
     assert "the run as segmented" in note and "correction log entry 1" in note
+    assert "--frame F --recompute" in note and "--frame 8 --recompute" in stale_note(run, frame=8)
     assert scene_after(run, seg=seg).stale == note  # query / grasp print it
     with pytest.raises(Clutt3rError, match="STALE"):
         _update(run, img)
