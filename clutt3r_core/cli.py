@@ -12,9 +12,9 @@ command line) or ``CLUTT3R_DEBUG=1`` prints the traceback too. Library calls kee
 raising the typed errors; only this entry point turns them into a line.
 
 ``clutt3r segment`` starts before the others (issue 13, whole-command time): a plain
-``SCENE --out RUN [--preset P]`` runs without tyro's parser, and ``main()`` called without an argument list (the ``clutt3r`` script, ``python -m``)
-ends the process when the run is written, without the interpreter's teardown
-(``_segment_without_parser``, ``_end_process``).
+``SCENE --out RUN [--preset P]`` runs without tyro's parser, and ``main()`` called without an
+argument list (the ``clutt3r`` script, ``python -m``) ends the process when the run is written,
+without the interpreter's teardown (``_segment_without_parser``, ``_end_process``).
 """
 
 from __future__ import annotations
