@@ -80,6 +80,7 @@ from clutt3r_core.corrections import (  # noqa: F401  (re-exported: the public n
 from clutt3r_core.correction_undo import Inverse, apply_edit, inverses_from_arrays, inverses_to_arrays, revert
 from clutt3r_core.errors import SceneError, SceneFileError
 from clutt3r_core.io.images import atomic_write_bytes
+from clutt3r_core.run_files import CORRECTION_LOG as LOG_NAME
 
 __all__ = [
     "Relabel",
@@ -105,7 +106,6 @@ __all__ = [
     "SNAPSHOT_NAME",
 ]
 
-LOG_NAME = "corrections/ops.jsonl"
 SNAPSHOT_NAME = "corrections/instances_corrected.npz"
 CHECKPOINT_UNDO_DEPTH = 256  # inverses kept in the checkpoint (ours: a long undo run; measured cost above)
 _FORMAT = "clutt3r-corrections"

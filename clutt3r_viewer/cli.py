@@ -143,14 +143,14 @@ def export_html_command(run: Positional[Path], out: Positional[Path], scene: Pat
         scene: the run's scene folder, for the camera frustums (default: the one recorded in run.json).
         max_points: points embedded in the page.
     """
-    from clutt3r_core.annotations import Annotations
+    from clutt3r_core.annotations import LOG_NAME, Annotations
     from clutt3r_viewer.export_html import export_html
     from clutt3r_viewer.loading import load_viewer_data
 
     # typed errors (a damaged run) reach the CLI: one line, status 2, --debug (issue 14)
     data = load_viewer_data(run, scene)
     labels = None
-    if (Path(run) / "corrections" / "ops.jsonl").is_file():  # the corrected labels, read-only
+    if (Path(run) / LOG_NAME).is_file():  # the corrected labels, read-only
         with Annotations.open(run, segmentation=data.seg, readonly=True) as ann:
             labels = ann.current.instance if ann.num_ops else None
     p = export_html(data, out, labels, max_points=max_points)

@@ -26,11 +26,10 @@ from pathlib import Path
 import numpy as np
 
 from clutt3r_core.errors import SceneError, SceneFileError
+from clutt3r_core.run_files import CORRECTION_LOG as LOG_NAME
 
 __all__ = ["LabelSource", "RunLabels", "run_labels", "labels_sha256", "chain_source", "labels_change", "stale_note",
            "run_share", "LOG_NAME"]
-
-LOG_NAME = "corrections/ops.jsonl"
 
 
 def labels_sha256(instance: np.ndarray) -> str:
