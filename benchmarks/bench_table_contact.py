@@ -9,6 +9,12 @@ the labelling ceiling and the ``error_breakdown`` per scene as JSON lines, then 
 
 ``--boundary`` also splits the breakdown's boundary cells into object cells left unlabelled,
 object cells labelled with another object, and GT-background (table) cells labelled as an object.
+``--variant NAME:FIELD=VALUE,FIELD=VALUE`` (repeatable) runs named config variants instead of
+``--heights``, e.g. the session-8 contact rule (support levels, fill and contact):
+
+    .venv/bin/python benchmarks/bench_table_contact.py --seeds 2 3 --variant off:refine.contact_height=0 \
+        --variant fill:refine.contact_height=0.003,refine.contact_fill_low=0.004,refine.contact_fill_high=0.012
+
 Scenes are cached under --cache (default /tmp/bench_cache, the suite's).
 """
 
@@ -50,20 +56,27 @@ def main() -> None:
     ap.add_argument("--difficulties", nargs="+", default=["easy", "intermediate", "hard"])
     ap.add_argument("--depth-noise", default="realsense")
     ap.add_argument("--heights", type=float, nargs="+", default=[0.0, 0.002], help="contact_height values, metres")
+    ap.add_argument("--variant", action="append", default=[], help="NAME:FIELD=VALUE,... (replaces --heights)")
     ap.add_argument("--boundary", action="store_true")
     ap.add_argument("--cache", default="/tmp/bench_cache")
     args = ap.parse_args()
     specs = [s for s in synth_suite(max(args.seeds) + 1, args.difficulties, depth_noise=args.depth_noise)
              if int(s.name[-4:]) in args.seeds]
-    rows: dict[float, list[dict]] = {h: [] for h in args.heights}
+    variants: dict[str, dict] = {}
+    for v in args.variant:
+        name, _, fields = v.partition(":")
+        variants[name] = {f.split("=")[0]: float(f.split("=")[1]) for f in fields.split(",") if f}
+    if not variants:
+        variants = {str(h): {"refine.contact_height": h} for h in args.heights}
+    rows: dict[str, list[dict]] = {k: [] for k in variants}
     for spec in specs:
         scene = _load_prepared(args.cache, spec).scene  # generated into the cache when missing
         gt = scene.ground_truth
-        for h in args.heights:
-            seg = segment(scene, with_fields(SegmentConfig(), {"refine.contact_height": h}), progress=False)
+        for h, fields in variants.items():
+            seg = segment(scene, with_fields(SegmentConfig(), fields), progress=False)
             res, _ = evaluate_instances(seg.points, seg.instance, seg.scores, gt)
             b = error_breakdown(seg.points, seg.instance, seg.scores, gt)
-            r = dict(scene=spec.name, contact_height=h, ap25=round(res.ap25, 1), ap50=round(res.ap50, 1),
+            r = dict(scene=spec.name, variant=h, ap25=round(res.ap25, 1), ap50=round(res.ap50, 1),
                      ap=round(res.ap, 1), pred=res.num_pred, gt=res.num_gt, ceiling=round(b.ap_all_fixed, 1),
                      gain={k: round(g, 1) for k, g in zip(ERROR_KINDS, b.ap_gain)},
                      cells={k: c for k, c in zip(ERROR_KINDS, b.wrong_cells)}, gt_cells=b.gt_cells)
@@ -72,7 +85,7 @@ def main() -> None:
             print(json.dumps(r), flush=True)
             rows[h].append(r)
     for h, rs in rows.items():
-        print("MEAN contact_height", h, json.dumps({c: round(float(np.mean([r[c] for r in rs])), 2)
+        print("MEAN", h, json.dumps({c: round(float(np.mean([r[c] for r in rs])), 2)
                                                      for c in ("ap25", "ap50", "ap", "pred", "ceiling")}))
 
 

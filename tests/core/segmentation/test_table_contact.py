@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from clutt3r_core.errors import SceneError
-from clutt3r_core.segmentation.refine import RefineConfig, table_contact
+from clutt3r_core.segmentation.refine import RefineConfig, contact_labels, support_levels, table_contact
 
 # a tilted plane, unit normal towards the cameras: n . x + d = 0
 N = np.array([0.0, 0.6, 0.8])
@@ -76,10 +76,17 @@ def test_pipeline_unlabels_only_the_contact():
     changed = on.instance != off.instance
     assert changed.any()  # this scene's objects rest on the table: some contact points were labelled (measured)
     assert (on.instance[changed] == -1).all() and (off.instance[changed] >= 0).all()
-    # exactly the labelled points within 2 mm of the pipeline's support plane
+    # exactly the labelled points within 2 mm of their object's support level (``contact_labels``)
     cfg = SegmentConfig()
     plane = build_supervoxels(fuse_views(scene.initial_views, cfg.pointcloud), cfg.supervoxels).plane
-    assert np.array_equal(changed, table_contact(off.points, off.instance, plane, 0.002))
+    res = contact_labels(off.points, off.normals, off.instance, off.num_instances, plane, RefineConfig(contact_height=0.002))
+    assert np.array_equal(changed, res.cleared) and not res.filled.any()
+    assert np.abs(res.level).max() < 0.002  # objects on the table itself: levels within the noise of the plane
+    fill = with_fields(SegmentConfig(), {"refine.contact_height": 0.003, "refine.contact_fill_low": 0.004,
+                                         "refine.contact_fill_high": 0.012})
+    both = segment(scene, fill)
+    res = contact_labels(off.points, off.normals, off.instance, off.num_instances, plane, fill.refine)
+    assert np.array_equal(both.instance, res.instance)
 
 
 def test_clean_depth_is_left_alone():
@@ -94,3 +101,87 @@ def test_clean_depth_is_left_alone():
     assert hi.trace.surface.method == "voxel-mean"
     off = segment(scene, with_fields(SegmentConfig(), {"refine.contact_height": 0.0}))
     assert np.array_equal(hi.instance, off.instance)
+
+
+def _box_on_floor(floor: float, seed: int = 0, noise: float = 0.001):
+    """A 4 cm box (walls and top; label 0) on a floor ``floor`` metres above PLANE, with the floor
+    around it (unlabelled, facing up) and the box's lowest 10 mm of wall unlabelled (what the support
+    rule leaves; the walls sampled every 2.5 mm of height). Returns (points, normals, instance, heights above PLANE)."""
+    rng = np.random.default_rng(seed)
+    t1, t2 = np.array([1.0, 0.0, 0.0]), np.cross(N, [1.0, 0.0, 0.0])
+    o = -PLANE[3] * N
+    g = np.arange(-0.06, 0.0601, 0.005)
+    uu, vv = np.meshgrid(g, g)
+    out = (np.abs(uu) > 0.02) | (np.abs(vv) > 0.02)
+    fu, fv = uu[out], vv[out]
+    fh = floor + rng.normal(0, noise, fu.size)
+    wall_u, wall_v, wall_h, wall_n = [], [], [], []
+    s = np.arange(-0.02, 0.0201, 0.005)
+    for z in np.arange(0.0, 0.04, 0.0025):
+        for (u, v, nu, nv) in [(s, np.full_like(s, -0.02), 0, -1), (s, np.full_like(s, 0.02), 0, 1),
+                               (np.full_like(s, -0.02), s, -1, 0), (np.full_like(s, 0.02), s, 1, 0)]:
+            wall_u.append(u); wall_v.append(v); wall_h.append(np.full_like(s, floor + z)); wall_n.append(np.tile([nu, nv, 0.0], (len(s), 1)))
+    wu, wv, wh = np.concatenate(wall_u), np.concatenate(wall_v), np.concatenate(wall_h)
+    wn = np.concatenate(wall_n)
+    tu, tv = uu[~out], vv[~out]
+    th = np.full(tu.size, floor + 0.04)
+    u = np.concatenate([fu, wu, tu]); v = np.concatenate([fv, wv, tv]); h = np.concatenate([fh, wh, th])
+    pts = o + u[:, None] * t1 + v[:, None] * t2 + h[:, None] * N
+    nrm_local = np.concatenate([np.tile([0, 0, 1.0], (fu.size, 1)), wn, np.tile([0, 0, 1.0], (tu.size, 1))])
+    nrm = nrm_local[:, :1] * t1 + nrm_local[:, 1:2] * t2 + nrm_local[:, 2:] * N
+    inst = np.concatenate([np.full(fu.size, -1), np.where(wh - floor < 0.0099, -1, 0), np.zeros(tu.size, int)])
+    return pts, nrm, inst, h
+
+
+@pytest.mark.parametrize("floor", [0.0, 0.008])
+def test_contact_fill_and_clear_relative_to_the_measured_floor(floor):
+    p, n, inst, h = _box_on_floor(floor)
+    lvl, noise = support_levels(p, n, inst, 1, PLANE)
+    assert abs(lvl[0] - floor) < 0.001 and 0.0003 < noise[0] < 0.002  # the floor around the box, its 1 mm noise
+    cfg = RefineConfig(contact_height=0.003, contact_fill_low=0.004, contact_fill_high=0.012)
+    r = contact_labels(p, n, inst, 1, PLANE, cfg)
+    rel = h - floor
+    wall = (inst < 0) & (np.abs(n @ N) < 0.5)
+    # the wall 4-12 mm above the floor is the box's again; the floor never is (it lies below 4 mm)
+    assert (r.instance[wall & (rel >= 0.004) & (rel < 0.0115)] == 0).all()
+    assert (r.instance[np.abs(n @ N) > 0.5] == np.where(h[np.abs(n @ N) > 0.5] > floor + 0.02, 0, -1)).all()
+    # the wall under 4 mm stays unlabelled; nothing labelled sits under 3 mm above the floor
+    assert (r.instance[wall & (rel < 0.004)] == -1).all()
+    assert (rel[r.instance >= 0] >= 0.003 - 1e-9).all()
+    assert np.array_equal(r.filled, (inst < 0) & (r.instance >= 0)) and not r.cleared.any()
+
+
+def test_contact_labels_off_or_without_a_plane_is_the_identity():
+    p, n, inst, _ = _box_on_floor(0.0)
+    for cfg, plane in ((RefineConfig(), PLANE), (RefineConfig(contact_height=0.003, contact_fill_low=0.004,
+                                                                contact_fill_high=0.012), None)):
+        r = contact_labels(p, n, inst, 1, plane, cfg)
+        assert np.array_equal(r.instance, inst) and not r.filled.any() and not r.cleared.any()
+    with pytest.raises(SceneError, match="contact_fill"):
+        RefineConfig(contact_fill_low=0.01, contact_fill_high=0.5)  # metres, not millimetres
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 10_000), st.floats(0.0, 0.006), st.floats(0.0, 0.006), st.floats(0.0, 0.02))
+def test_contact_labels_invariants(seed, height, low, span):
+    rng = np.random.default_rng(seed)
+    m = 300
+    p = at_heights(rng.uniform(-0.005, 0.03, m), seed) * 0.1  # a 6 cm patch: points close together
+    p = p - (p @ N + PLANE[3])[:, None] * N + (p @ N + PLANE[3])[:, None] * N  # (heights keep their sign)
+    n = rng.normal(size=(m, 3)); n /= np.linalg.norm(n, axis=1, keepdims=True)
+    inst = rng.integers(-1, 3, m)
+    cfg = RefineConfig(contact_height=height, contact_fill_low=low, contact_fill_high=low + span)
+    r = contact_labels(p, n, inst, 3, PLANE, cfg)
+    h = p @ N + PLANE[3]
+    rel = h - np.where(r.instance >= 0, r.level[np.maximum(r.instance, 0)], 0.0)
+    assert ((r.instance >= 0) | (inst < 0) | r.cleared).all()  # a label is only lost by the contact rule
+    assert (r.instance[inst >= 0][~r.cleared[inst >= 0]] == inst[inst >= 0][~r.cleared[inst >= 0]]).all()
+    assert not (r.filled & r.cleared).any() and (inst[r.filled] < 0).all() and (inst[r.cleared] >= 0).all()
+    if height > 0:
+        assert (rel[r.instance >= 0] >= height - 1e-9).all()
+    # a filled point took the label of an object point within the fill distance
+    from scipy.spatial import cKDTree
+    for k in range(3):
+        f = r.filled & (r.instance == k)
+        if f.any() and (inst == k).any():
+            assert (cKDTree(p[inst == k]).query(p[f])[0] <= cfg.contact_fill_distance + 1e-12).all()
