@@ -36,7 +36,7 @@ from clutt3r_core.segmentation.grouping import (
     semantic_similarity,
     spatial_similarity,
 )
-from clutt3r_core.segmentation.refine import absorb_fragments, table_contact, weak_echoes
+from clutt3r_core.segmentation.refine import absorb_fragments, contact_labels, weak_echoes
 from clutt3r_core.segmentation.trace import StageClock, StageTiming, Trace
 from clutt3r_core.segmentation.trees import InstanceTree, build_tree_overlaps
 from clutt3r_core.segmentation.vote import supervoxel_vote
@@ -294,9 +294,11 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
             points, colors = np.concatenate([points, rim.points]), np.concatenate([colors, rim.colors])
             normals, counts = np.concatenate([normals, rim.normals]), np.concatenate([counts, rim.counts])
     if cloud.surface is not None and cloud.surface.method == "tsdf":
-        # ours (issue 13): on noisy depth (the fusion ran the surface estimate) object points at the
-        # table contact are left unlabelled (``refine.table_contact``; on clean depth it cost AP50)
-        instance = np.where(table_contact(points, instance, sv.plane, config.refine.contact_height), -1, instance)
+        # ours (issue 13): on noisy depth (the fusion ran the surface estimate) the object-support
+        # contact is relabelled by height above each object's own support level: the lowest walls
+        # the support rule took are the object's, its lowest millimetres the table's
+        # (``refine.contact_labels``; on clean depth it cost AP50)
+        instance = contact_labels(points, normals, instance, len(vote.scores), sv.plane, config.refine).instance
     tick("done")
     if bar is not None:
         bar.close()
