@@ -20,6 +20,7 @@ from clutt3r_core.errors import SceneError, SceneFileError
 from clutt3r_core.occupancy import OccupancyConfig
 from clutt3r_core.pointcloud import PointCloudConfig
 from clutt3r_core.segmentation.grouping import GroupingConfig
+from clutt3r_core.segmentation.instance_surface import InstanceSurfaceConfig
 from clutt3r_core.segmentation.refine import RefineConfig
 from clutt3r_core.segmentation.trees import TreeConfig
 from clutt3r_core.segmentation.vote import VoteConfig
@@ -52,6 +53,9 @@ class SegmentConfig:
     vote: VoteConfig = field(default_factory=VoteConfig)
     refine: RefineConfig = field(default_factory=RefineConfig)
     """Post-vote fragment absorption (ours, issue 13; ``segmentation.refine``)."""
+    instance_surface: InstanceSurfaceConfig = field(default_factory=InstanceSurfaceConfig)
+    """Each instance's points onto a local surface of its own points, after the labelling (ours,
+    issue 13; off by default: ``segmentation.instance_surface``, docs/benchmark/strict-iou.md)."""
     embedder: str = "appearance-hsv"
     """Backend of S_semantic (Sec. III-B.2 uses Duoduo CLIP; see clutt3r_core/embeddings.py)."""
     background_fraction: float = 0.5
@@ -210,6 +214,7 @@ ADDED_AFTER_V1: dict[str, Any] = {
     "refine.min_won_fraction": 0.0,
     "refine.weak_echo_ratio": 0.0,
     "refine.contact_height": 0.0,
+    "instance_surface.radius": 0.0,
     "refine.contact_fill_low": 0.0,
     "refine.contact_fill_high": 0.0,
     "refine.contact_fill_distance": 0.0075,
@@ -226,7 +231,7 @@ such a trace (issue 13: the first two only made existing rules switchable; the o
 fixes or rules that the old code did not have). Only these may be missing from a stored config."""
 
 
-_STAGES_ADDED_AFTER_V1 = ("refine",)
+_STAGES_ADDED_AFTER_V1 = ("refine", "instance_surface")
 """Whole stage configs added after trace version 1 (issue 13: ``refine``); a config without one
 gets its defaults with the ``ADDED_AFTER_V1`` fields (any other missing stage is an error)."""
 

@@ -36,6 +36,7 @@ from clutt3r_core.segmentation.grouping import (
     semantic_similarity,
     spatial_similarity,
 )
+from clutt3r_core.segmentation.instance_surface import smooth_instances
 from clutt3r_core.segmentation.refine import absorb_fragments, contact_labels, weak_echoes
 from clutt3r_core.segmentation.trace import StageClock, StageTiming, Trace
 from clutt3r_core.segmentation.trees import InstanceTree, build_tree_overlaps
@@ -299,6 +300,12 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
         # the support rule took are the object's, its lowest millimetres the table's
         # (``refine.contact_labels``; on clean depth it cost AP50)
         instance = contact_labels(points, normals, instance, len(vote.scores), sv.plane, config.refine).instance
+    if config.instance_surface.enabled:
+        # ours (issue 13), off by default: each instance's points onto a local surface fitted to its
+        # own points only (never averaged across a contact); labels, counts and normals stay
+        with timer("instance_surface"):
+            points = smooth_instances(points, instance, config.instance_surface, counts,
+                                      config.pointcloud.voxel_size).points
     tick("done")
     if bar is not None:
         bar.close()
