@@ -7,8 +7,10 @@ grasp the added instances are drawn, coloured and selectable in every colour mod
 ones are ghosts where they were last seen, the displaced ones are at their new pose.
 
 ``ShownScene`` holds it for the displayed points (``idx``, the level of detail) and the added
-instances (which are not in the run's cloud: a second cloud). ``chain_steps`` summarises each
-update for the timeline. Pure functions over ``ViewerData``; no viser.
+instances (which are not in the run's cloud: a second cloud); it is a view of the core's
+``update.scene_after.SceneAfter``, built by the core's ``build_scene_after`` from the chain the
+viewer loaded, so every tab shows the scene ``clutt3r query`` / ``clutt3r grasp --step`` see.
+``chain_steps`` summarises each update for the timeline. Pure functions over ``ViewerData``; no viser.
 """
 
 from __future__ import annotations
@@ -17,11 +19,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ShownScene", "shown_scene", "scene_step", "StepSummary", "chain_steps", "scene_grasp_request"]
+__all__ = ["ShownScene", "shown_scene", "scene_after_of", "chain_inputs_of", "scene_step", "StepSummary", "chain_steps",
+           "scene_grasp_request"]
 
 
 _CACHED_SCENES = 8
 """Scenes ``shown_scene`` keeps per run (least recently built dropped first)."""
+
+_CACHED_AFTER = 3
+"""Whole-cloud ``SceneAfter``s ``scene_after_of`` keeps per run (each about 33 bytes a run point:
+33 MB at 1M points); the shown scenes are views of them."""
 
 
 def scene_step(update: int, after: bool, n_updates: int) -> int:
@@ -34,15 +41,16 @@ def scene_step(update: int, after: bool, n_updates: int) -> int:
 
 @dataclass(frozen=True, eq=False)
 class ShownScene:
-    """The run's scene after ``step`` updates, for the displayed points ``idx``.
+    """The run's scene after ``step`` updates, for the displayed points ``idx``: a view of the
+    core's ``SceneAfter`` (``scene_after_of``).
 
     Attributes:
         step: updates applied (0 = the initial segmentation).
         idx: (M,) int64 displayed points, indices into ``seg.points``.
-        points: (M, 3) float64 world metres: displaced instances at their composed motions.
+        points: (M, 3) float32 world metres: displaced instances at their composed motions.
         instance: (M,) int32 instance of each point then, -1 = none or removed.
         gone: (M,) bool points of instances removed by then (ghosts, where last seen).
-        added_points: (A, 3) float64 world metres, the instances the updates added (not removed
+        added_points: (A, 3) float32 world metres, the instances the updates added (not removed
             since), moved by the later updates.
         added_instance: (A,) int32 their ids.
         added_colors: (A, 3) uint8 their colours (from the new view).
@@ -79,44 +87,71 @@ class ShownScene:
         return int(k) in self.added_in
 
 
+def chain_inputs_of(data, step: int):
+    """The core's ``ChainInputs`` of the scene after the first ``step`` updates of ``data.updates``
+    (the chain the viewer loaded): the run's cloud in the chain's labelling (``chain_instance``),
+    each update's record (``HistoryEntry.of_result``), the added instances as the state after
+    ``step`` updates holds them (``UpdateFrame.added_now``), the post views' camera centres."""
+    from clutt3r_core.update.scene_after import ChainInputs
+    from clutt3r_core.update.state import HistoryEntry
+    from clutt3r_viewer.panels.update_sources import chain_instance
+
+    seg, ups = data.seg, list(data.updates[:step])
+    inst, ids, n_ids = np.asarray(seg.instance, np.int32), np.arange(seg.num_instances), seg.num_instances
+    if step > 0:  # the ids of the labelling the chain was computed from (the Edit tab's corrections then)
+        i0 = chain_instance(data)
+        if not np.array_equal(i0, inst):  # as update.chain_inputs: its ids with points
+            inst, ids, n_ids = i0, np.unique(i0[i0 >= 0]), max(n_ids, int(i0.max(initial=-1)) + 1)
+    hist = tuple(HistoryEntry.of_result(u.result, j + 1) if u.result is not None
+                 else HistoryEntry(j + 1, int(u.frame), (), (), np.zeros((0, 4, 4))) for j, u in enumerate(ups))
+    now = ups[-1].added_now if ups else ()
+    cat = lambda xs, shape, dt: np.concatenate(xs) if xs else np.zeros(shape, dt)  # noqa: E731
+    return ChainInputs(
+        points=seg.points, colors=seg.colors, normals=seg.normals, instance=inst, ids=ids, num_ids=n_ids,
+        history=hist, n_updates=len(data.updates), added_points=cat([a.points for a in now], (0, 3), np.float32),
+        added_colors=cat([a.colors for a in now], (0, 3), np.uint8),
+        added_instance=cat([np.full(len(a.points), a.instance, np.int32) for a in now], 0, np.int32),
+        eyes={u.frame: u.camera.T_world_camera[:3, 3] for u in ups if u.camera is not None})
+
+
+def scene_after_of(data, step: int):
+    """The core's ``SceneAfter`` (``update.scene_after.build_scene_after``) of the scene after the
+    first ``step`` updates of ``data.updates``: what ``clutt3r query`` / ``clutt3r grasp --step``
+    see. Cached per step (the last ``_CACHED_AFTER``)."""
+    from clutt3r_core.update.scene_after import build_scene_after
+
+    step = int(np.clip(step, 0, len(data.updates)))
+    cache = data._cache.setdefault("scene_after", {})
+    if step not in cache:
+        while len(cache) >= _CACHED_AFTER:
+            cache.pop(next(iter(cache)))
+        cache[step] = build_scene_after(chain_inputs_of(data, step))
+    else:
+        cache[step] = cache.pop(step)  # most recently used last
+    return cache[step]
+
+
 def shown_scene(data, step: int, idx: np.ndarray) -> ShownScene:
     """The scene after the first ``step`` updates of ``data.updates`` for points ``idx``
     (cached per (step, displayed point count): the level of detail fixes ``idx``)."""
-    from clutt3r_viewer.panels.update_sources import added_instances, chain_instance, updated_scene
-
     step = int(np.clip(step, 0, len(data.updates)))
     idx = np.asarray(idx, np.int64)
     key = ("shown", step, len(idx))
     hit = data._cache.get(key)
     if hit is not None and np.array_equal(hit.idx, idx):
         return hit
-    # a few scenes only: each holds (M, 3) float64 positions (24 MB at 1M points), and tabs
-    # step through a chain of updates at one or two levels of detail
+    # a few scenes only: tabs step through a chain of updates at one or two levels of detail
     keys = data._cache.setdefault("shown_keys", [])
     if key in keys:
         keys.remove(key)
     while len(keys) >= _CACHED_SCENES:
         data._cache.pop(keys.pop(0), None)
     keys.append(key)
-    seg = data.seg
-    if step == 0:
-        pts = np.asarray(seg.points, np.float64)[idx]
-        inst = np.asarray(seg.instance, np.int32)[idx]
-        gone = np.zeros(len(idx), bool)
-    else:  # updated_scene's (u, after=True) is the scene after u + 1 updates
-        pts, inst, gone = updated_scene(data, step - 1, idx, True)
-    apts, ainst, acol, added_in = added_instances(data, step)
-    removed = sorted({r.instance for u in data.updates[:step] if u.result is not None
-                      for r in u.result.instances if r.status == "removed"})
-    ids = np.arange(seg.num_instances, dtype=np.int32)
-    if step > 0:  # the ids of the labelling the chain was computed from (the Edit tab's corrections then)
-        i0 = chain_instance(data)
-        if not np.array_equal(i0, seg.instance):  # as update.scene_after: its ids with points
-            ids = np.unique(i0[i0 >= 0])
-    run_ids = np.setdiff1d(ids, removed)
-    present = np.union1d(run_ids, np.unique(ainst)).astype(np.int32)
-    out = ShownScene(step, idx, pts, np.asarray(inst, np.int32), gone, apts, ainst, acol, present,
-                     tuple(int(x) for x in removed), added_in)
+    sa = scene_after_of(data, step)
+    gone = sa.gone[idx]
+    out = ShownScene(step, idx, sa.run_points[idx], np.where(gone, -1, sa.run_instance[idx]), gone, sa.added_points,
+                     sa.added_instance, sa.added_colors, sa.present, tuple(sorted(sa.removed)),
+                     {k: f for k, (_, f) in sa.added.items()})
     data._cache[key] = out
     return out
 
@@ -172,42 +207,11 @@ def chain_steps(data) -> tuple[StepSummary, ...]:
     return data._cache["chain_steps"]
 
 
-def scene_grasp_request(data, step: int, k: int, knn: int = 16):
-    """A ``GraspRequest`` for instance ``k`` of the scene after ``step`` updates: the run's points
-    (displaced ones moved, their normals turned with them, removed ones left out) plus the added
-    instances' points (by id), whose normals are PCA normals (``knn`` neighbours) of their points
-    where they are now, oriented towards the camera of the update that added them moved like the
-    object since: as ``clutt3r grasp`` builds it (``update.scene_after``), so the Grasps tab plans
-    what the command plans. No depth views: the initial views no longer show the updated scene (a
-    cloud-only collision check; the Grasps tab says so)."""
-    from clutt3r_core.errors import SceneError
-    from clutt3r_core.grasping import GraspRequest
+def scene_grasp_request(data, step: int, k: int):
+    """A ``GraspRequest`` for instance ``k`` of the scene after ``step`` updates: the core's
+    ``SceneAfter.grasp_request`` (``scene_after_of``), so the Grasps tab plans what ``clutt3r grasp``
+    plans. No depth views: the initial views no longer show the updated scene (a cloud-only
+    collision check; the Grasps tab says so). ``SceneError`` when ``k`` is not in that scene."""
     from clutt3r_core.grasping.request import run_voxel_size
-    from clutt3r_core.update.scene_after import oriented_normals
-    from clutt3r_viewer.panels.update_sources import chain_instance, update_motions
 
-    seg = data.seg
-    sc = shown_scene(data, step, np.arange(len(seg.points)))
-    if int(k) not in set(sc.present.tolist()):
-        raise SceneError(f"instance {k} is not in the scene after {step} update(s)")
-    keep = ~sc.gone
-    inst0 = chain_instance(data)  # the ids the chain's motions name (updated_scene moves the points by them)
-    nrm = np.asarray(seg.normals, np.float64).copy()
-    M = update_motions(data.updates[:step], seg.num_instances)[step]  # every id of the chain, added ones too
-    for i in np.flatnonzero(np.any(M != np.eye(4), axis=(1, 2))):
-        sel = inst0 == i
-        nrm[sel] = nrm[sel] @ M[i, :3, :3].T
-    pts, nrms, inst = [sc.points[keep]], [nrm[keep]], [sc.instance[keep]]
-    eye_of = {u.frame: u.camera.T_world_camera[:3, 3] for u in data.updates[:step] if u.camera is not None}
-    for a in sorted(sc.added_in):
-        # float32, as the core's state stores the moved points: the same kNN (ties included) and normals
-        p = sc.added_points[sc.added_instance == a].astype(np.float32).astype(np.float64)
-        eye, T = eye_of.get(sc.added_in[a]), M[a]
-        if eye is not None:
-            eye = T[:3, :3] @ np.asarray(eye, np.float64) + T[:3, 3]
-        pts.append(p)
-        nrms.append(oriented_normals(p, eye, knn))
-        inst.append(np.full(len(p), a, np.int32))
-    return GraspRequest(points=np.concatenate(pts).astype(np.float32), normals=np.concatenate(nrms).astype(np.float32),
-                        target=np.concatenate(inst) == int(k), instance=int(k), views=(),
-                        voxel_size=run_voxel_size(seg))
+    return scene_after_of(data, step).grasp_request(k, voxel_size=run_voxel_size(data.seg))

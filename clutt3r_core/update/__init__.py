@@ -73,6 +73,9 @@ class UpdateFrame:
         instance0: (N,) int32 the chain's labelling before any update: the run's ids after the
             corrections the chain was computed from (``update.run_labels``); None = the run as
             segmented.
+        added_now: the instances this update and the earlier ones added and did not remove, as
+            the state saved after it holds them (moved by the updates since; the viewer builds
+            the scene after it from them, ``update.scene_after.ChainInputs.added_points``).
     """
 
     frame: int
@@ -82,6 +85,7 @@ class UpdateFrame:
     text: str = ""
     result: UpdateResult | None = None
     instance0: np.ndarray | None = None
+    added_now: tuple[NewInstance, ...] = ()
 
 
 @runtime_checkable

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from types import MappingProxyType
 from typing import Iterable, Mapping
@@ -34,7 +35,7 @@ import numpy as np
 
 from clutt3r_core.errors import Clutt3rError, SceneError, SceneFileError
 
-__all__ = ["SceneAfter", "scene_after", "chain_length", "compose_motions", "resolve_step", "added_masks",
+__all__ = ["SceneAfter", "ChainInputs", "build_scene_after", "chain_inputs", "scene_after", "chain_length", "compose_motions", "resolve_step", "added_masks",
            "oriented_normals", "ADDED_NORMAL_KNN"]
 
 ADDED_NORMAL_KNN = 16
@@ -78,18 +79,89 @@ def oriented_normals(points: np.ndarray, eye: np.ndarray | None, knn: int = ADDE
 
 
 @dataclass(frozen=True, eq=False)
+class ChainInputs:
+    """What the scene after a chain's first ``len(history)`` updates is built from
+    (``build_scene_after``, pure). ``chain_inputs`` reads it from a run folder; the viewer fills
+    it from the chain it loaded (``clutt3r_viewer.scene_step``), so both show one scene.
+
+    Attributes:
+        points: (N, 3) float32 world metres, the run's whole fused cloud (rim voxels included).
+        colors: (N, 3) uint8.
+        normals: (N, 3) float32 unit.
+        instance: (N,) int32 the chain's labelling of those points (the corrected ids when the
+            chain was computed after corrections, ``update.run_labels``), -1 = none.
+        ids: (K,) int32 the instances of that labelling before any update, ascending.
+        num_ids: ids the labelling ever used (the motions cover at least these).
+        history: the updates applied, in chain order (``state.HistoryEntry``; () = step 0).
+        n_updates: updates in the whole chain (>= len(history)).
+        added_points: (A, 3) float32 world metres: the points of the instances the updates added
+            and did not remove, as the state after them holds them (moved by the later updates).
+        added_colors: (A, 3) uint8.
+        added_instance: (A,) int32 their ids.
+        eyes: {frame: (3,) camera centre of that post view, world metres}, to orient the added
+            instances' normals; a frame without one orients them towards +z.
+        run, stale, run_share: carried into ``SceneAfter`` as they are.
+    """
+
+    points: np.ndarray
+    colors: np.ndarray
+    normals: np.ndarray
+    instance: np.ndarray
+    ids: np.ndarray
+    num_ids: int
+    history: tuple = ()
+    n_updates: int = 0
+    added_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
+    added_colors: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.uint8))
+    added_instance: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
+    eyes: Mapping[int, np.ndarray] = field(default_factory=dict)
+    run: Path | None = None
+    stale: str | None = None
+    run_share: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        n, a = len(self.points), len(self.added_points)
+        if np.shape(self.points) != (n, 3) or np.shape(self.colors) != (n, 3) or np.shape(self.normals) != (n, 3) \
+                or np.shape(self.instance) != (n,):
+            raise SceneError("ChainInputs: points, colors, normals (N, 3) and instance (N,) must agree")
+        if np.shape(self.added_points) != (a, 3) or np.shape(self.added_colors) != (a, 3) \
+                or np.shape(self.added_instance) != (a,):
+            raise SceneError("ChainInputs: added_points, added_colors (A, 3) and added_instance (A,) must agree")
+        if len(self.history) > self.n_updates:
+            raise SceneError(f"ChainInputs: {len(self.history)} updates applied of a chain of {self.n_updates}")
+        for name, dt in (("points", np.float32), ("colors", np.uint8), ("normals", np.float32),
+                         ("instance", np.int32), ("ids", np.int32), ("added_points", np.float32),
+                         ("added_colors", np.uint8), ("added_instance", np.int32)):
+            object.__setattr__(self, name, _ro(getattr(self, name), dt))
+        object.__setattr__(self, "history", tuple(self.history))
+        object.__setattr__(self, "eyes", MappingProxyType({int(f): np.asarray(e, np.float64)
+                                                           for f, e in dict(self.eyes).items()}))
+
+
+@dataclass(frozen=True, eq=False)
 class SceneAfter:
-    """A run's scene after its first ``step`` updates.
+    """A run's scene after its first ``step`` updates (``build_scene_after``).
+
+    The run's points are kept whole (``run_*``, N rows: the viewer draws the removed ones as
+    ghosts where they were last seen); ``points`` / ``colors`` / ``normals`` / ``instance`` are
+    the scene itself: the run's points of instances not removed, then the added instances'.
 
     Attributes:
         step: updates applied (0 = the run as segmented).
         n_updates: updates in the run's chain.
         frame: post-interaction frame of the last update applied (None at step 0).
-        points: (N, 3) float32 world metres: the run's points without removed instances,
-            displaced ones moved, then the added instances' points.
-        colors: (N, 3) uint8.
-        normals: (N, 3) float32 unit, oriented towards the cameras that saw them.
-        instance: (N,) int32 instance id of each point, -1 = none.
+        run_points: (N, 3) float32 world metres, every run point: displaced instances moved by
+            their composed motions, removed ones where they were last seen.
+        run_colors: (N, 3) uint8.
+        run_normals: (N, 3) float32 unit, turned with their instance.
+        run_instance: (N,) int32 the chain's id of each run point (the chain's labelling; a
+            removed instance's points keep its id: they are ``gone``), -1 = none.
+        gone: (N,) bool run points of instances removed by ``step``.
+        added_points: (A, 3) float32 world metres, the added instances' points now.
+        added_colors: (A, 3) uint8.
+        added_normals: (A, 3) float32 unit PCA normals, oriented towards the camera of the
+            update that added them, moved like the instance since (``oriented_normals``).
+        added_instance: (A,) int32 their ids.
         present: (K,) int32 instance ids in the scene, ascending.
         removed: {id: (step, frame) of the update that removed it}, for ids removed by ``step``.
         added: {id: (step, frame) of the update that added it}, for added ids still present.
@@ -108,10 +180,15 @@ class SceneAfter:
     step: int
     n_updates: int
     frame: int | None
-    points: np.ndarray
-    colors: np.ndarray
-    normals: np.ndarray
-    instance: np.ndarray
+    run_points: np.ndarray
+    run_colors: np.ndarray
+    run_normals: np.ndarray
+    run_instance: np.ndarray
+    gone: np.ndarray
+    added_points: np.ndarray
+    added_colors: np.ndarray
+    added_normals: np.ndarray
+    added_instance: np.ndarray
     present: np.ndarray
     removed: Mapping[int, tuple[int, int]] = field(default_factory=dict)
     added: Mapping[int, tuple[int, int]] = field(default_factory=dict)
@@ -122,17 +199,51 @@ class SceneAfter:
     run_share: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        n = len(self.points)
-        if np.shape(self.points) != (n, 3) or np.shape(self.colors) != (n, 3) or np.shape(self.normals) != (n, 3) \
-                or np.shape(self.instance) != (n,):
-            raise SceneError("SceneAfter: points, colors, normals (N, 3) and instance (N,) must agree")
+        n, a = len(self.run_points), len(self.added_points)
+        if any(np.shape(getattr(self, x)) != (n, 3) for x in ("run_points", "run_colors", "run_normals")) \
+                or np.shape(self.run_instance) != (n,) or np.shape(self.gone) != (n,):
+            raise SceneError("SceneAfter: run_points, run_colors, run_normals (N, 3), run_instance and gone (N,) "
+                             "must agree")
+        if any(np.shape(getattr(self, x)) != (a, 3) for x in ("added_points", "added_colors", "added_normals")) \
+                or np.shape(self.added_instance) != (a,):
+            raise SceneError("SceneAfter: added_points, added_colors, added_normals (A, 3) and added_instance (A,) "
+                             "must agree")
         if not 0 <= self.step <= self.n_updates:
             raise SceneError(f"SceneAfter: step {self.step} outside 0..{self.n_updates}")
-        for name, dt in (("points", np.float32), ("colors", np.uint8), ("normals", np.float32),
-                         ("instance", np.int32), ("present", np.int32), ("motions", np.float64)):
+        for name, dt in (("run_points", np.float32), ("run_colors", np.uint8), ("run_normals", np.float32),
+                         ("run_instance", np.int32), ("gone", np.bool_), ("added_points", np.float32),
+                         ("added_colors", np.uint8), ("added_normals", np.float32), ("added_instance", np.int32),
+                         ("present", np.int32), ("motions", np.float64)):
             object.__setattr__(self, name, _ro(getattr(self, name), dt))
         object.__setattr__(self, "removed", MappingProxyType(dict(self.removed)))
         object.__setattr__(self, "added", MappingProxyType(dict(self.added)))
+
+    def _scene(self, run: np.ndarray, added: np.ndarray) -> np.ndarray:
+        if not self.gone.any() and not len(added):
+            return run  # step 0 and chains that removed and added nothing: no copy
+        out = np.concatenate([run[~self.gone], added])
+        out.setflags(write=False)
+        return out
+
+    @cached_property
+    def points(self) -> np.ndarray:
+        """(P, 3) float32 world metres: the run's points without removed instances, then the added ones."""
+        return self._scene(self.run_points, self.added_points)
+
+    @cached_property
+    def colors(self) -> np.ndarray:
+        """(P, 3) uint8, rows as ``points``."""
+        return self._scene(self.run_colors, self.added_colors)
+
+    @cached_property
+    def normals(self) -> np.ndarray:
+        """(P, 3) float32 unit, oriented towards the cameras that saw them; rows as ``points``."""
+        return self._scene(self.run_normals, self.added_normals)
+
+    @cached_property
+    def instance(self) -> np.ndarray:
+        """(P,) int32 instance id of each point of ``points``, -1 = none."""
+        return self._scene(self.run_instance, self.added_instance)
 
     @property
     def label(self) -> str:
@@ -203,14 +314,55 @@ def added_masks(run_dir: str | Path, step: int) -> list[tuple[int, int, int]]:
     return out
 
 
-def scene_after(run_dir: str | Path, step: int | None = None, seg=None,
-                eyes: Mapping[int, np.ndarray] | None = None) -> SceneAfter:
-    """The scene of run ``run_dir`` after its first ``step`` updates (None: all of them).
+def build_scene_after(inp: ChainInputs) -> SceneAfter:
+    """The scene after ``inp.history``'s updates (module docstring): removed instances' points
+    left out (kept in ``run_*`` as ``gone``), displaced ones moved by their composed motions
+    (``compose_motions``; normals turned with them), the added instances' points with PCA normals
+    oriented towards ``inp.eyes`` of the update that added them, moved like the instance since."""
+    hist = inp.history
+    step = len(hist)
+    removed = {k: (h.step, h.frame) for h in hist for k in h.removed}
+    added_at = {k: (h.step, h.frame) for h in hist for k in h.added}
+    n_ids = max(int(inp.num_ids), 1 + max(added_at, default=-1))
+    M = compose_motions([zip(h.displaced, h.T_world) for h in hist], n_ids)[step]
+    inst0 = inp.instance
+    gone = np.isin(inst0, list(removed)) & (inst0 >= 0)
+    pts, nrm = inp.points.astype(np.float64), inp.normals.astype(np.float64)
+    for k in np.flatnonzero(np.any(M[:inp.num_ids] != np.eye(4), axis=(1, 2))):
+        sel = inst0 == k
+        pts[sel] = pts[sel] @ M[k, :3, :3].T + M[k, :3, 3]
+        nrm[sel] = nrm[sel] @ M[k, :3, :3].T
+    added = {k: v for k, v in added_at.items() if k not in removed}
+    P, C, N, I = [], [], [], []
+    for k in sorted(added):
+        sel = inp.added_instance == k
+        p = inp.added_points[sel].astype(np.float64)  # already moved by the later updates
+        # orient as seen from the camera that added it, moved like the object since
+        eye = inp.eyes.get(added[k][1])
+        T = M[k]
+        if eye is not None:
+            eye = T[:3, :3] @ eye + T[:3, 3]
+        P.append(p)
+        C.append(inp.added_colors[sel])
+        N.append(oriented_normals(p, eye))
+        I.append(np.full(len(p), k, np.int32))
+    cat = lambda xs, shape, dt: np.concatenate(xs) if xs else np.zeros(shape, dt)  # noqa: E731
+    present = np.setdiff1d(np.union1d(inp.ids, list(added)), list(removed)).astype(np.int32)
+    moved = sorted({k for h in hist for k in h.displaced} & set(present.tolist()))
+    return SceneAfter(step, inp.n_updates, hist[-1].frame if hist else None, pts, inp.colors, nrm,
+                      inst0, gone, cat(P, (0, 3), np.float32), cat(C, (0, 3), np.uint8),
+                      cat(N, (0, 3), np.float32), cat(I, 0, np.int32), present, removed, added, tuple(moved), M,
+                      inp.run, inp.stale, inp.run_share)
+
+
+def chain_inputs(run_dir: str | Path, step: int | None = None, seg=None,
+                 eyes: Mapping[int, np.ndarray] | None = None) -> ChainInputs:
+    """``ChainInputs`` of run ``run_dir`` after its first ``step`` updates (None: all of them),
+    read from the run folder and its saved chain.
 
     Args:
         seg: the run's ``Segmentation`` when already loaded (else ``runs.load_run``).
-        eyes: {frame: camera centre (3,) world metres} of the post views, to orient the added
-            instances' normals (``oriented_normals``); missing frames fall back to +z.
+        eyes: {frame: camera centre (3,) world metres} of the post views (``ChainInputs.eyes``).
     """
     from clutt3r_core.update.state import load_state, state_dirs
 
@@ -221,13 +373,10 @@ def scene_after(run_dir: str | Path, step: int | None = None, seg=None,
         seg = load_run(run_dir)
     dirs = state_dirs(run_dir)
     step = resolve_step(run_dir, step)
-    pts0 = np.asarray(seg.points, np.float64)
-    inst0 = np.asarray(seg.instance, np.int32)
-    nrm0 = np.asarray(seg.normals, np.float64)
+    base = dict(points=seg.points, colors=seg.colors, normals=seg.normals, n_updates=len(dirs),
+                eyes=eyes or {}, run=run_dir)
     if step == 0:
-        return SceneAfter(0, len(dirs), None, pts0, seg.colors, nrm0, inst0,
-                          np.arange(seg.num_instances, dtype=np.int32),
-                          motions=np.tile(np.eye(4), (seg.num_instances, 1, 1)), run=run_dir)
+        return ChainInputs(instance=seg.instance, ids=np.arange(seg.num_instances), num_ids=seg.num_instances, **base)
     st = load_state(dirs[step - 1])
     hist = st.history[:step]
     if len(hist) != step:
@@ -235,8 +384,7 @@ def scene_after(run_dir: str | Path, step: int | None = None, seg=None,
     from clutt3r_core.update.run_labels import LOG_NAME, run_labels, run_share, stale_note
 
     stale, share = None, None
-    n_run = seg.num_instances
-    ids0 = np.arange(n_run)
+    inst0, n_run, ids0 = seg.instance, seg.num_instances, np.arange(seg.num_instances)
     if st.labels is not None and st.labels.entries > 0:
         lab = run_labels(run_dir, seg, entries=st.labels.entries)  # the labelling the chain was computed from
         if lab.source.labels_sha256 != st.labels.labels_sha256:
@@ -247,31 +395,21 @@ def scene_after(run_dir: str | Path, step: int | None = None, seg=None,
         inst0, n_run, ids0 = lab.instance, lab.num_ids, lab.ids
     if (run_dir / LOG_NAME).is_file():  # always there for a corrected chain (run_labels above needs it)
         stale = stale_note(run_dir, seg)
-    removed = {k: (h.step, h.frame) for h in hist for k in h.removed}
-    added_at = {k: (h.step, h.frame) for h in hist for k in h.added}
-    n_ids = max(n_run, 1 + max(added_at, default=-1))
-    M = compose_motions([zip(h.displaced, h.T_world) for h in hist], n_ids)[step]
-    keep = ~np.isin(inst0, list(removed)) | (inst0 < 0)
-    pts, nrm = pts0.copy(), nrm0.copy()
-    for k in np.flatnonzero(np.any(M[:n_run] != np.eye(4), axis=(1, 2))):
-        sel = inst0 == k
-        pts[sel] = pts[sel] @ M[k, :3, :3].T + M[k, :3, 3]
-        nrm[sel] = nrm[sel] @ M[k, :3, :3].T
-    P, C, N, I = [pts[keep]], [np.asarray(seg.colors)[keep]], [nrm[keep]], [inst0[keep]]
-    added = {k: v for k, v in added_at.items() if k not in removed}
-    for k in sorted(added):
-        sel = st.instance == k
-        p = st.points[sel].astype(np.float64)  # the state's: already moved by the later updates
-        # orient as seen from the camera that added it, moved like the object since
-        eye = None if eyes is None else eyes.get(added[k][1])
-        T = M[k]
-        if eye is not None:
-            eye = T[:3, :3] @ np.asarray(eye, np.float64) + T[:3, 3]
-        P.append(p)
-        C.append(st.colors[sel])
-        N.append(oriented_normals(p, eye))
-        I.append(np.full(len(p), k, np.int32))
-    present = np.setdiff1d(np.union1d(ids0, list(added)), list(removed)).astype(np.int32)
-    moved = sorted({k for h in hist for k in h.displaced} & set(present.tolist()))
-    return SceneAfter(step, len(dirs), hist[-1].frame, np.concatenate(P), np.concatenate(C), np.concatenate(N),
-                      np.concatenate(I), present, removed, added, tuple(moved), M, run_dir, stale, share)
+    # the state holds the added instances still present, moved by the later updates
+    sel = np.isin(st.instance, [k for h in hist for k in h.added])
+    return ChainInputs(instance=inst0, ids=ids0, num_ids=n_run, history=hist, added_points=st.points[sel],
+                       added_colors=st.colors[sel], added_instance=st.instance[sel], stale=stale, run_share=share,
+                       **base)
+
+
+def scene_after(run_dir: str | Path, step: int | None = None, seg=None,
+                eyes: Mapping[int, np.ndarray] | None = None) -> SceneAfter:
+    """The scene of run ``run_dir`` after its first ``step`` updates (None: all of them):
+    ``build_scene_after(chain_inputs(...))``.
+
+    Args:
+        seg: the run's ``Segmentation`` when already loaded (else ``runs.load_run``).
+        eyes: {frame: camera centre (3,) world metres} of the post views, to orient the added
+            instances' normals (``oriented_normals``); missing frames fall back to +z.
+    """
+    return build_scene_after(chain_inputs(run_dir, step, seg, eyes))

@@ -84,6 +84,18 @@ class HistoryEntry:
     occluded: tuple[int, ...] = ()
     added: tuple[int, ...] = ()
 
+    @staticmethod
+    def of_result(result: UpdateResult, step: int) -> "HistoryEntry":
+        """The record of update ``result`` applied as update ``step`` of a chain (``apply_update``;
+        the viewer's loaded chain, ``clutt3r_viewer.scene_step``)."""
+        displaced = [r for r in result.instances if r.status == "displaced"]
+        return HistoryEntry(
+            step=int(step), frame=result.frame, removed=tuple(int(x) for x in result.by_status("removed")),
+            displaced=tuple(r.instance for r in displaced),
+            T_world=np.stack([r.T_world for r in displaced]) if displaced else np.zeros((0, 4, 4)),
+            occluded=result.by_status("occluded"), added=tuple(sorted(result.by_status("new"))),
+        )
+
     def to_json(self) -> dict:
         return {"step": self.step, "frame": self.frame, "removed": list(self.removed),
                 "displaced": list(self.displaced), "T_world": np.round(self.T_world, 8).tolist(),
@@ -243,19 +255,13 @@ def apply_update(state: SceneState, result: UpdateResult) -> SceneState:
     removed = np.array(result.by_status("removed"), np.int32)
     keep = ~np.isin(state.instance, removed)
     keep_ids = ~np.isin(state.instance_ids, removed)
-    displaced = [r for r in result.instances if r.status == "displaced"]
     added = sorted(result.added, key=lambda a: a.instance)
     if {a.instance for a in added} != set(result.by_status("new")):
         raise SceneError(f"frame {result.frame}: the 'new' instances {sorted(result.by_status('new'))} must come "
                          f"with their points (UpdateResult.added: {[a.instance for a in added]})")
     if added and added[0].instance <= int(state.instance_ids.max(initial=-1)):
         raise SceneError(f"frame {result.frame}: added instance id {added[0].instance} is not above the state's ids")
-    entry = HistoryEntry(
-        step=state.step + 1, frame=result.frame, removed=tuple(int(x) for x in removed),
-        displaced=tuple(r.instance for r in displaced),
-        T_world=np.stack([r.T_world for r in displaced]) if displaced else np.zeros((0, 4, 4)),
-        occluded=result.by_status("occluded"), added=tuple(a.instance for a in added),
-    )
+    entry = HistoryEntry.of_result(result, state.step + 1)
     D = state.embeddings.shape[1]
     emb_new = np.zeros((len(added), D), np.float32)
     for j, a in enumerate(added):

@@ -48,7 +48,19 @@ __all__ = ["load_update_frames", "update_pose_events", "update_motions", "update
 
 
 
-def _result(folder: Path, doc: dict, hw: tuple[int, int]) -> UpdateResult:
+def _added_now(folder: Path, ids: set[int], mask_of: dict[int, int]) -> tuple[NewInstance, ...]:
+    """The instances ``ids`` as the state saved in ``folder`` holds them (``UpdateFrame.added_now``;
+    ``NewInstance.embedding`` from the state: a query in the run's space ranks them by it)."""
+    if not ids or not (folder / "state.npz").is_file():
+        return ()
+    with np.load(folder / "state.npz") as z:  # each z[key] reads the array from the archive again
+        inst, pts, cols, sid, emb = z["instance"], z["points"], z["colors"], z["instance_ids"], z["embeddings"]
+    e_of = lambda k: emb[int(np.searchsorted(sid, k))] if emb.shape[1] and k in sid else None  # noqa: E731
+    return tuple(NewInstance(k, mask_of.get(k, -1), pts[inst == k], cols[inst == k], e_of(k)) for k in sorted(ids)
+                 if np.any(inst == k))
+
+
+def _result(folder: Path, doc: dict, hw: tuple[int, int], now: tuple[NewInstance, ...]) -> UpdateResult:
     traces = load_pose_traces(folder)
     recs = []
     for r in doc["instances"]:
@@ -60,18 +72,9 @@ def _result(folder: Path, doc: dict, hw: tuple[int, int]) -> UpdateResult:
             pose = PoseResult(T, float(r["iou_before"] or 0.0), float(r["iou_after"] or 0.0), tr,
                               int(tr.stage.max(initial=0)) + 1, 0.0)
         recs.append(InstanceUpdate(k, r["status"], r["iou_before"], r["iou_after"], T, pose=pose))
-    # instances the update added (status "new"): their points are in the state it saved
-    new_ids = [r.instance for r in recs if r.status == "new"]
-    added = ()
-    if new_ids and (folder / "state.npz").is_file():
-        with np.load(folder / "state.npz") as z:  # each z[key] reads the array from the archive again
-            inst, pts, cols, ids, emb = z["instance"], z["points"], z["colors"], z["instance_ids"], z["embeddings"]
-        # the embedding (its mask's, the state's embedder) lets a query in the run's space rank it
-        e_of = lambda k: emb[int(np.searchsorted(ids, k))] if emb.shape[1] and k in ids else None  # noqa: E731
-        mask_of = {int(m["instance"]): int(m["mask"]) for m in doc.get("new_masks", [])
-                   if m.get("instance") is not None}  # the mask candidate each came from (the query describes it)
-        added = tuple(NewInstance(k, mask_of.get(k, -1), pts[inst == k], cols[inst == k], e_of(k)) for k in new_ids
-                      if np.any(inst == k))
+    # instances the update added (status "new"): their points are in the state it saved, as added
+    new_ids = {r.instance for r in recs if r.status == "new"}
+    added = tuple(a for a in now if a.instance in new_ids)
     new_masks = tuple(NewMask(int(m["mask"]), int(m.get("area_px", 0)), -1 if m.get("instance") is None
                               else int(m["instance"])) for m in doc.get("new_masks", []))
     return UpdateResult(int(doc["frame"]), tuple(recs), new_masks, np.zeros((len(recs), *hw), bool),
@@ -106,6 +109,8 @@ def load_update_frames(run_dir: Path | None, scene: Scene | None) -> tuple[Updat
         instance0 = np.load(Path(run_dir) / "instances.npz")["instance"]
     instance0 = np.asarray(instance0, np.int32)
     removed: set[int] = set()
+    added: set[int] = set()
+    mask_of: dict[int, int] = {}  # the mask candidate each added instance came from (the query describes it)
     out = []
     from clutt3r_core.io.images import read_rgb
 
@@ -116,6 +121,10 @@ def load_update_frames(run_dir: Path | None, scene: Scene | None) -> tuple[Updat
             raise Clutt3rError(f"{d / 'update.json'}: unreadable update ({e})") from None
         frame = int(doc["frame"])
         removed |= {int(r["instance"]) for r in doc["instances"] if r["status"] == "removed"}
+        added |= {int(r["instance"]) for r in doc["instances"] if r["status"] == "new"}
+        mask_of.update({int(m["instance"]): int(m["mask"]) for m in doc.get("new_masks", [])
+                        if m.get("instance") is not None})
+        now = _added_now(d, added - removed, mask_of)
         view = None
         if scene is not None:
             try:
@@ -126,7 +135,8 @@ def load_update_frames(run_dir: Path | None, scene: Scene | None) -> tuple[Updat
         hw = (view.camera.height, view.camera.width) if view is not None else (rgb.shape[:2] if rgb is not None else (1, 1))
         pi = np.where(np.isin(instance0, list(removed)), -1, instance0).astype(np.int32)
         out.append(UpdateFrame(frame=frame, rgb=rgb, camera=view.camera if view else None, point_instance=pi,
-                               text=_text(doc), result=_result(d, doc, hw), instance0=instance0))
+                               text=_text(doc), result=_result(d, doc, hw, now), instance0=instance0,
+                               added_now=now))
     return tuple(out)
 
 
@@ -272,50 +282,25 @@ def updated_scene(data, u: int, idx: np.ndarray, after: bool = True) -> tuple[np
     """The run's points ``idx`` in the scene after update ``u`` of ``data.updates`` (``after=False``:
     just before it, i.e. after update u - 1; u = -1: the initial segmentation).
 
-    Returns (positions (M, 3) float64 world metres: displaced instances moved by their composed
-    motions, ``update_motions``; instance (M,) int32 at that time, -1 = none or removed; gone (M,)
-    bool: points of instances removed by then, which stay where they were last seen).
+    Returns (positions (M, 3) float32 world metres: displaced instances moved by their composed
+    motions; instance (M,) int32 at that time, -1 = none or removed; gone (M,) bool: points of
+    instances removed by then, which stay where they were last seen): ``scene_step.shown_scene``'s.
     """
-    seg = data.seg
-    idx = np.asarray(idx, np.int64)
-    inst0 = chain_instance(data)[idx]
-    pts = np.asarray(seg.points, np.float64)[idx].copy()
-    inst, gone = updated_labels(data, u, idx, after)
-    n_done = u + 1 if after else u  # updates applied to the scene shown
-    if n_done <= 0 or not data.updates:
-        return pts, inst, gone
-    M = update_motions(data.updates[:n_done], int(inst0.max(initial=-1)) + 1)[n_done]
-    for k in np.flatnonzero(np.any(M != np.eye(4), axis=(1, 2))):
-        sel = inst0 == k
-        pts[sel] = pts[sel] @ M[k, :3, :3].T + M[k, :3, 3]
-    return pts, inst, gone
+    from clutt3r_viewer.scene_step import shown_scene
+
+    sc = shown_scene(data, max(u + 1 if after else u, 0), idx)
+    return sc.points, sc.instance, sc.gone
 
 
 def added_instances(data, step: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     """The instances added (status "new") by the first ``step`` updates of ``data.updates`` and
-    not removed since: (points (A, 3) float64 world metres, moved by the later updates' motions;
+    not removed since: (points (A, 3) float32 world metres, moved by the later updates' motions;
     instance (A,) int32; colours (A, 3) uint8; {id: frame of the update that added it}). They are
     not in the run's cloud, so the Scene panel draws them as a second point cloud."""
-    ups = list(data.updates[: max(int(step), 0)])
-    res = [f.result for f in ups if f.result is not None]
-    none = (np.zeros((0, 3)), np.zeros(0, np.int32), np.zeros((0, 3), np.uint8), {})
-    if not any(r.added for r in res):
-        return none
-    removed = {r.instance for x in res for r in x.instances if r.status == "removed"}
-    M = update_motions(ups, 0)[len(ups)]
-    pts, inst, cols, frames = [], [], [], {}
-    for x in res:
-        for a in x.added:
-            if a.instance in removed:
-                continue
-            T = M[a.instance]
-            pts.append(a.points.astype(np.float64) @ T[:3, :3].T + T[:3, 3])
-            inst.append(np.full(len(a.points), a.instance, np.int32))
-            cols.append(np.asarray(a.colors, np.uint8))
-            frames[int(a.instance)] = int(x.frame)
-    if not pts:
-        return none
-    return np.concatenate(pts), np.concatenate(inst), np.concatenate(cols), frames
+    from clutt3r_viewer.scene_step import scene_after_of
+
+    sa = scene_after_of(data, max(int(step), 0))
+    return sa.added_points, sa.added_instance, sa.added_colors, {k: f for k, (_, f) in sa.added.items()}
 
 
 def added_points(data, u: int, after: bool = True) -> tuple[np.ndarray, np.ndarray]:
@@ -326,14 +311,9 @@ def added_points(data, u: int, after: bool = True) -> tuple[np.ndarray, np.ndarr
 
 
 def updated_labels(data, u: int, idx: np.ndarray, after: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """The instance and gone arrays of ``updated_scene`` without its positions (the colour
-    layer's part: the Scene panel asks ``updated_scene`` for the positions of the same points)."""
-    idx = np.asarray(idx, np.int64)
-    inst0 = chain_instance(data)[idx]
-    n_done = u + 1 if after else u
-    pi = data.updates[n_done - 1].point_instance if n_done > 0 and data.updates else None
-    inst = inst0.astype(np.int32) if pi is None else np.asarray(pi, np.int32)[idx]
-    return inst, (inst0 >= 0) & (inst < 0)
+    """The instance and gone arrays of ``updated_scene`` (the colour layer's part)."""
+    _, inst, gone = updated_scene(data, u, idx, after)
+    return inst, gone
 
 
 @dataclass(frozen=True)

@@ -1,8 +1,10 @@
-"""The viewer's Grasps tab plans on the request ``clutt3r grasp`` plans on: after each update of a
-chain, ``scene_step.scene_grasp_request`` (built from the viewer's ``UpdateFrame``s) equals the
-core's ``grasping.request.request_from_run`` (built from the run's saved states,
-``update.scene_after``) point for point, normal for normal, including the added instance's PCA
-normals, oriented towards the camera of the post view that added it and moved by a later update."""
+"""The viewer shows the scene ``clutt3r query`` / ``clutt3r grasp --step`` see: both build it with
+the core's ``update.scene_after.build_scene_after``, the viewer from the chain it loaded
+(``scene_step.chain_inputs_of``: its ``UpdateFrame``s), the commands from the run folder
+(``update.scene_after.chain_inputs``). The two readers give the same inputs value for value, so
+the Grasps tab's request equals ``grasping.request.request_from_run``'s point for point, normal
+for normal, including the added instance's PCA normals, oriented towards the camera of the post
+view that added it and moved by a later update."""
 
 from __future__ import annotations
 
@@ -33,6 +35,47 @@ def test_the_grasps_tab_plans_on_the_commands_request(tiny_run_dir, tiny_seg, ti
             np.testing.assert_array_equal(got.normals, want.normals)
             np.testing.assert_array_equal(got.target, want.target)
             assert got.voxel_size == want.voxel_size and got.target.any()
+
+
+def test_the_viewer_and_the_run_folder_give_the_builder_the_same_inputs(tiny_run_dir, tiny_seg, tiny_scene,
+                                                                          tmp_path):
+    """After each of the three updates (an instance added, pushed, removed) ``chain_inputs_of``
+    (the viewer's loaded chain) equals ``chain_inputs`` (the run folder) field by field, and the
+    scene the viewer shows is the core's ``SceneAfter`` at the displayed points."""
+    import clutt3r_viewer.panels.update_sources  # noqa: F401
+    from clutt3r_core.update.scene_after import build_scene_after, chain_inputs
+    from clutt3r_viewer.loading import load_viewer_data
+    from clutt3r_viewer.scene_step import chain_inputs_of, scene_after_of, shown_scene
+    from tests.viewer._update_chain import build_chain
+
+    v = tiny_scene.initial_views[0]
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run_dir, run)
+    k = build_chain(tiny_seg, run, frame=int(v.frame))
+    d = load_viewer_data(run)
+    eye = v.camera.T_world_camera[:3, 3]
+    for step in range(4):
+        got = chain_inputs_of(d, step)
+        want = chain_inputs(run, step, seg=d.seg, eyes={int(v.frame): eye})
+        for x in ("points", "colors", "normals", "instance", "ids", "added_points", "added_colors", "added_instance"):
+            np.testing.assert_array_equal(getattr(got, x), getattr(want, x), err_msg=f"step {step}: {x}")
+        assert got.num_ids == want.num_ids and got.n_updates == want.n_updates == 3
+        assert len(got.history) == len(want.history) == step
+        for hg, hw in zip(got.history, want.history):
+            assert (hg.step, hg.frame, hg.removed, hg.displaced, hg.added) == \
+                   (hw.step, hw.frame, hw.removed, hw.displaced, hw.added)
+            np.testing.assert_array_equal(hg.T_world, hw.T_world)
+        if step:  # the frame that added K faces its camera in both
+            np.testing.assert_array_equal(got.eyes[int(v.frame)], want.eyes[int(v.frame)])
+        sa, ref = scene_after_of(d, step), build_scene_after(want)
+        for x in ("points", "normals", "instance", "present", "motions", "run_points", "gone"):
+            np.testing.assert_array_equal(getattr(sa, x), getattr(ref, x), err_msg=f"step {step}: {x}")
+        assert dict(sa.added) == dict(ref.added) and dict(sa.removed) == dict(ref.removed)
+        sub = np.arange(0, len(tiny_seg.points), 5)
+        sc = shown_scene(d, step, sub)
+        np.testing.assert_array_equal(sc.points, ref.run_points[sub])
+        np.testing.assert_array_equal(sc.instance, np.where(ref.gone, -1, ref.run_instance)[sub])
+        assert (k in sc.present.tolist()) == (step in (1, 2))
 
 
 def test_the_query_tab_scores_the_scene_as_clutt3r_query_does(tiny_run_dir, tiny_seg, tiny_scene, tmp_path,
