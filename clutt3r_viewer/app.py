@@ -155,7 +155,7 @@ class Session:
             if over is not None:
                 col = over(self, col)
         if layer.name not in ("replay", "update") and self.scene_step() > 0:  # "update" ghosts them itself
-            col = ghost_removed(col, self.scene(), self.app.data)
+            col = ghost_removed(col, self.scene())
         return self._highlight(col, inp.instance[self.lod_idx], self.app.data.node_points(st.node)[self.lod_idx]
                                if st.node >= 0 else None)
 

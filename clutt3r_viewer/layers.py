@@ -64,8 +64,9 @@ GHOST_WHITE = 0.75
 
 
 def ghost(col: np.ndarray, gone: np.ndarray, instance0: np.ndarray) -> np.ndarray:
-    """``col`` (M, 3) with the points ``gone`` (M,) bool drawn pale in the colour of their run
-    instance ``instance0`` (M,) (``GHOST_WHITE``): removed instances, where they were last seen."""
+    """``col`` (M, 3) with the points ``gone`` (M,) bool drawn pale in the colour of the instance
+    ``instance0`` (M,) they belonged to (``GHOST_WHITE``; the chain's ids,
+    ``ShownScene.last_instance``): removed instances, where they were last seen."""
     if not gone.any():
         return col
     col = col.copy()
@@ -74,9 +75,10 @@ def ghost(col: np.ndarray, gone: np.ndarray, instance0: np.ndarray) -> np.ndarra
     return col
 
 
-def ghost_removed(col: np.ndarray, scene, data: ViewerData) -> np.ndarray:
-    """``ghost`` for the points of instances removed by the scene shown (a ``ShownScene``)."""
-    return ghost(col, scene.gone, np.asarray(data.seg.instance)[scene.idx])
+def ghost_removed(col: np.ndarray, scene) -> np.ndarray:
+    """``ghost`` for the points of instances removed by the scene shown (a ``ShownScene``), in
+    the colours of the ids the chain removed (the corrected ids when the chain has corrections)."""
+    return ghost(col, scene.gone, scene.last_instance)
 
 
 def layer_added_colors(layer: "ColorLayer", inp: LayerInput, state: SessionState, instance: np.ndarray,

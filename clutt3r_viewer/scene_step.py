@@ -50,6 +50,9 @@ class ShownScene:
         points: (M, 3) float32 world metres: displaced instances at their composed motions.
         instance: (M,) int32 instance of each point then, -1 = none or removed.
         gone: (M,) bool points of instances removed by then (ghosts, where last seen).
+        last_instance: (M,) int32 the chain's id of each point (the labelling the chain was
+            computed from: the corrected ids after Edit-tab corrections); a ghost is drawn in
+            its removed instance's colour from it.
         added_points: (A, 3) float32 world metres, the instances the updates added (not removed
             since), moved by the later updates.
         added_instance: (A,) int32 their ids.
@@ -65,6 +68,7 @@ class ShownScene:
     points: np.ndarray
     instance: np.ndarray
     gone: np.ndarray
+    last_instance: np.ndarray
     added_points: np.ndarray
     added_instance: np.ndarray
     added_colors: np.ndarray
@@ -74,8 +78,9 @@ class ShownScene:
 
     def __post_init__(self) -> None:
         m, a = len(self.idx), len(self.added_points)
-        if self.points.shape != (m, 3) or self.instance.shape != (m,) or self.gone.shape != (m,):
-            raise ValueError(f"ShownScene: points (M,3), instance (M,) and gone (M,) for M = {m} points")
+        if self.points.shape != (m, 3) or self.instance.shape != (m,) or self.gone.shape != (m,) \
+                or self.last_instance.shape != (m,):
+            raise ValueError(f"ShownScene: points (M,3), instance, gone and last_instance (M,) for M = {m} points")
         if self.added_instance.shape != (a,) or self.added_colors.shape != (a, 3):
             raise ValueError(f"ShownScene: added_instance (A,) and added_colors (A,3) for A = {a} points")
 
@@ -148,8 +153,8 @@ def shown_scene(data, step: int, idx: np.ndarray) -> ShownScene:
         data._cache.pop(keys.pop(0), None)
     keys.append(key)
     sa = scene_after_of(data, step)
-    gone = sa.gone[idx]
-    out = ShownScene(step, idx, sa.run_points[idx], np.where(gone, -1, sa.run_instance[idx]), gone, sa.added_points,
+    gone, last = sa.gone[idx], sa.run_instance[idx]
+    out = ShownScene(step, idx, sa.run_points[idx], np.where(gone, -1, last), gone, last, sa.added_points,
                      sa.added_instance, sa.added_colors, sa.present, tuple(sorted(sa.removed)),
                      {k: f for k, (_, f) in sa.added.items()})
     data._cache[key] = out

@@ -329,8 +329,10 @@ class UpdateSceneLayer:
     def colors(self, inp, state) -> np.ndarray:
         if not 0 <= state.update < len(inp.data.updates):
             return label_colors(inp.instance[inp.idx])  # -1 = the initial segmentation
-        inst, gone = updated_labels(inp.data, state.update, inp.idx, state.update_after)
-        return ghost(label_colors(inst), gone, np.asarray(inp.data.seg.instance)[inp.idx])
+        from clutt3r_viewer.scene_step import scene_step, shown_scene
+
+        sc = shown_scene(inp.data, scene_step(state.update, state.update_after, len(inp.data.updates)), inp.idx)
+        return ghost(label_colors(sc.instance), sc.gone, sc.last_instance)
 
 
 register_update_loader(load_update_frames)

@@ -90,3 +90,45 @@ def test_a_run_whose_update_chain_cannot_be_read_opens_without_it_and_says_why(t
     (run / "updates" / "01_frame_000008" / "update.json").write_text("{ not json")
     d = load_viewer_data(run, images=False)
     assert d.updates == () and any("update.json" in x.message for x in d.seg.warnings)
+
+
+def test_removed_instances_of_a_corrected_chain_are_ghosted_in_the_corrected_ids_colours(tiny_run_dir, tiny_seg,
+                                                                                        tmp_path):
+    """A merge (b into a) before the update, then the update removes a: every ghost, b's former
+    points included, is drawn pale in a's colour (the id the chain removed), not in b's (the run's
+    id), in the "update" layer and in every other layer (``ghost_removed``)."""
+    import clutt3r_viewer.panels.update_sources  # noqa: F401  (registers the loader)
+    from clutt3r_viewer.data import label_colors
+    from clutt3r_viewer.layers import GHOST_WHITE, LayerInput, ghost_removed
+    from clutt3r_viewer.loading import load_viewer_data
+    from clutt3r_viewer.panels.update_sources import UpdateSceneLayer
+    from clutt3r_viewer.scene_step import shown_scene
+    from clutt3r_viewer.state import SessionState
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run_dir, run)
+    a, b, c = _two(tiny_seg)
+    with Annotations.open(run, segmentation=tiny_seg, author="test") as ann:
+        ann.apply_op(Merge(into=a, other=b))
+        labels = ann.current.instance
+    s0 = state_from_run(run)
+    r1 = _fake_update(s0, 8, k=c, shift=0.05, removed=a, n_iter=3)
+    save_state(apply_update(s0, r1), run / "updates" / "01_frame_000008", r1)
+    d = load_viewer_data(run, images=False)
+
+    idx = np.arange(len(tiny_seg.points))
+    was_a, was_b = tiny_seg.instance == a, tiny_seg.instance == b
+    pale = lambda k: np.round((1 - GHOST_WHITE) * label_colors(np.array([k])).astype(np.float32)  # noqa: E731
+                              + GHOST_WHITE * 255).astype(np.uint8)[0]
+    assert not np.array_equal(pale(a), pale(b))  # the test tells the two apart
+    sc = shown_scene(d, 1, idx)
+    np.testing.assert_array_equal(sc.gone, was_a | was_b)
+    assert np.all(sc.last_instance[was_b] == a) and np.all(sc.instance[was_b] == -1)
+
+    state = SessionState()
+    state.update, state.update_after = 0, True
+    inp = LayerInput(data=d, idx=idx, instance=labels, scores=np.ones(tiny_seg.num_instances + 1, np.float32))
+    col = UpdateSceneLayer().colors(inp, state)
+    assert np.all(col[was_b] == pale(a)) and np.all(col[was_a] == pale(a))
+    col = ghost_removed(label_colors(sc.instance), sc)  # any other layer's colours, ghosted
+    assert np.all(col[was_b] == pale(a)) and np.all(col[~sc.gone] == label_colors(sc.instance)[~sc.gone])
