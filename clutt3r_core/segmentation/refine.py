@@ -68,8 +68,9 @@ class RefineConfig:
     contact_height: float = 0.0
     """Ours (issue 13 part 2), metres; 0 = off, the default (like ``weak_echo_ratio``: it gains
     strict-IoU AP but costs what the labels are for, below). After the vote (and the rim
-    attach), object-labelled points closer than this above the support plane are left unlabelled
-    (``table_contact``): the depth noise mixes an object's lowest millimetres with the table, and
+    attach), object-labelled points closer than this above their object's support level are left
+    unlabelled (``contact_labels``; the level is the table or tray floor measured around the object,
+    ``support_levels``; session 4 measured it above the global plane, ``table_contact``): the depth noise mixes an object's lowest millimetres with the table, and
     the super-voxels and rim voxels that straddle the contact hand table to the object. Measured
     with RealSense-like depth (mean of 6 scenes, AP25 / AP50 unchanged, no scene lower): AP
     51.7 -> 53.2 on tuning seeds 2-3, 53.6 -> 54.8 on held-out seeds 0-1; 3 mm gained less on
@@ -80,7 +81,9 @@ class RefineConfig:
     point between the fingers as foreign, lost grasps (held-out seed 0: easy 43 grasps on 5 of 6
     objects -> 40 on 4 of 6, intermediate 51 on 5 of 10 -> 60 on 4 of 10), and on the real
     sample_seq1 (7.3 % of its object points unlabelled) the frame-8 update read the moved clamp as
-    static. docs/benchmark/strict-iou.md, fourth pass."""
+    static. docs/benchmark/strict-iou.md, fourth pass. Session 8: 0.003 with the fill
+    (``contact_fill_low`` 0.004, ``contact_fill_high`` 0.012) gains more (tuning mean AP 51.7 ->
+    53.8, AP50 93.6 -> 97.8) but has the same two costs; still off (strict-iou.md, session 8)."""
 
     contact_fill_low: float = 0.0
     """Ours (issue 13 part 2, session 8), metres above the object's own support level; used with
