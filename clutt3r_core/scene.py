@@ -92,6 +92,19 @@ class Camera:
         object.__setattr__(self, "height", int(self.height))
         object.__setattr__(self, "T_world_camera", _frozen_array(check_rigid(self.T_world_camera, "camera pose")))
 
+    def to_json(self) -> dict:
+        """``{"K", "width", "height", "T_world_camera"}`` (lists; a camera file ``clutt3r update
+        --camera`` reads, ``update.inputs.read_camera_json``; floats round-trip exactly)."""
+        return {"K": self.K.tolist(), "width": self.width, "height": self.height,
+                "T_world_camera": self.T_world_camera.tolist()}
+
+    @staticmethod
+    def from_json(d: dict) -> "Camera":
+        """The camera of ``to_json``'s dict; ``KeyError`` naming a missing field, ``SceneError``
+        when it is not a valid camera."""
+        return Camera(np.asarray(d["K"], float), int(d["width"]), int(d["height"]),
+                      np.asarray(d["T_world_camera"], float))
+
     @property
     def fx(self) -> float:
         return float(self.K[0, 0])

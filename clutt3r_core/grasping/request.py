@@ -96,14 +96,16 @@ def request_from_run(run_dir: str | Path, instance: int, scene: str | Path | Non
 
 def scene_now(run: str | Path, step: int | None, seg=None, scene: str | Path | None = None):
     """The run's ``update.scene_after.SceneAfter`` at ``step`` (None: the latest); the added
-    instances' normals face the camera of the post view that added them when the scene folder
-    has that view (else +z, ``scene_after.oriented_normals``)."""
-    from clutt3r_core.update.scene_after import added_masks, resolve_step, scene_after
+    instances' normals face the camera of the post view that added them: the camera its
+    ``update.json`` records (since session 8), else the scene folder's view of that frame when
+    it has one (updates written before), else +z (``scene_after.oriented_normals``)."""
+    from clutt3r_core.update.scene_after import added_masks, post_cameras, resolve_step, scene_after, update_docs
 
     step = resolve_step(run, step)
-    eyes = {}
-    frames = {f for _, f, _ in added_masks(run, step)}
-    if frames:
+    docs = update_docs(run, step)
+    frames = {f for _, f, _ in added_masks(run, step, docs)}
+    eyes = {f: c.T_world_camera[:3, 3] for f, c in post_cameras(run, step, docs).items() if f in frames}
+    if frames - set(eyes):  # older update.json files: the scene folder's views (~0.2 s to load it)
         try:
             from clutt3r_core.io import load_scene
             from clutt3r_core.runs import run_scene_folder
@@ -112,7 +114,7 @@ def scene_now(run: str | Path, step: int | None, seg=None, scene: str | Path | N
             if folder is not None:
                 sc = load_scene(folder, load_gt=False)
                 for v in sc.views:
-                    if v.frame in frames:
+                    if v.frame in frames and v.frame not in eyes:
                         eyes[v.frame] = v.camera.T_world_camera[:3, 3]
         except Clutt3rError:
             pass  # no scene folder: +z (the module says so)

@@ -26,11 +26,9 @@ def read_camera_json(path: str | Path) -> Camera:
         raise SceneFileError(path, f"unreadable camera JSON: {e}") from None
     try:
         if "K" in d:
-            K, w, h, T = d["K"], d["width"], d["height"], d["T_world_camera"]
-        else:
-            K = [[d["fl_x"], 0, d["cx"]], [0, d["fl_y"], d["cy"]], [0, 0, 1]]
-            w, h, T = d["w"], d["h"], d["transform_matrix"]
-        return Camera(np.asarray(K, float), int(w), int(h), np.asarray(T, float))
+            return Camera.from_json(d)
+        K = [[d["fl_x"], 0, d["cx"]], [0, d["fl_y"], d["cy"]], [0, 0, 1]]
+        return Camera(np.asarray(K, float), int(d["w"]), int(d["h"]), np.asarray(d["transform_matrix"], float))
     except KeyError as e:
         raise SceneFileError(path, f"camera JSON lacks the field {e}; expected K/width/height/T_world_camera "
                                    "or fl_x/fl_y/cx/cy/w/h/transform_matrix") from None

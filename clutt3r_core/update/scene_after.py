@@ -35,8 +35,9 @@ import numpy as np
 
 from clutt3r_core.errors import Clutt3rError, SceneError, SceneFileError
 
-__all__ = ["SceneAfter", "ChainInputs", "build_scene_after", "chain_inputs", "scene_after", "chain_length", "compose_motions", "resolve_step", "added_masks",
-           "oriented_normals", "ADDED_NORMAL_KNN"]
+__all__ = ["SceneAfter", "ChainInputs", "build_scene_after", "chain_inputs", "scene_after", "chain_length",
+           "compose_motions", "resolve_step", "update_docs", "added_masks", "post_cameras", "oriented_normals",
+           "ADDED_NORMAL_KNN"]
 
 ADDED_NORMAL_KNN = 16
 """ours: neighbours of the PCA normals of added instances (the viewer's Grasps tab uses the same)."""
@@ -297,20 +298,42 @@ def resolve_step(run_dir: str | Path, step: int | None) -> int:
     return int(step)
 
 
-def added_masks(run_dir: str | Path, step: int) -> list[tuple[int, int, int]]:
-    """(instance id, frame, mask id in that post view) of every instance the first ``step``
-    updates added from a mask candidate (``update.json`` "new_masks")."""
+def update_docs(run_dir: str | Path, step: int) -> list[tuple[Path, dict]]:
+    """(path, parsed ``update.json``) of the first ``step`` updates of the run's chain."""
     from clutt3r_core.update.state import state_dirs
 
     out = []
     for d in state_dirs(run_dir)[:step]:
         try:
-            doc = json.loads((d / "update.json").read_text())
+            out.append((d / "update.json", json.loads((d / "update.json").read_text())))
         except (OSError, json.JSONDecodeError) as e:
             raise SceneFileError(d / "update.json", f"unreadable update ({e})") from None
-        for m in doc.get("new_masks", []):
-            if m.get("instance") is not None:
-                out.append((int(m["instance"]), int(doc["frame"]), int(m["mask"])))
+    return out
+
+
+def added_masks(run_dir: str | Path, step: int,
+                docs: list[tuple[Path, dict]] | None = None) -> list[tuple[int, int, int]]:
+    """(instance id, frame, mask id in that post view) of every instance the first ``step``
+    updates added from a mask candidate (``update.json`` "new_masks"; ``docs``: ``update_docs``
+    when already read)."""
+    docs = update_docs(run_dir, step) if docs is None else docs
+    return [(int(m["instance"]), int(doc["frame"]), int(m["mask"])) for _, doc in docs
+            for m in doc.get("new_masks", []) if m.get("instance") is not None]
+
+
+def post_cameras(run_dir: str | Path, step: int, docs: list[tuple[Path, dict]] | None = None) -> dict:
+    """{frame: ``Camera``} of the post views of the first ``step`` updates, from their
+    ``update.json`` "camera" (written since session 8; older updates have none: absent here;
+    ``docs``: ``update_docs`` when already read)."""
+    from clutt3r_core.scene import Camera
+
+    out = {}
+    for path, doc in update_docs(run_dir, step) if docs is None else docs:
+        if doc.get("camera") is not None:
+            try:
+                out[int(doc["frame"])] = Camera.from_json(doc["camera"])
+            except (KeyError, TypeError, ValueError, SceneError) as e:
+                raise SceneFileError(path, f"invalid \"camera\" ({e})") from None
     return out
 
 

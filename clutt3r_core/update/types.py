@@ -840,6 +840,11 @@ class UpdateResult:
     time_s: float
     added: tuple[NewInstance, ...] = ()
     """The instances added (views with depth, ``ChangeConfig.new_objects``), one per "new" record."""
+    camera: Camera | None = None
+    """The post view's camera (update.json "camera", ``Camera.to_json``): a reader of the chain
+    orients the added instances' normals towards it without loading the scene folder
+    (``update.scene_after.post_cameras``). None in results read back from update.json files
+    written before session 8."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "instances", tuple(self.instances))
@@ -877,4 +882,5 @@ class UpdateResult:
             "new_masks": [{"mask": int(m.mask_id), "area_px": int(m.area_px),
                            "instance": None if m.instance < 0 else int(m.instance)} for m in self.new_masks],
             "time_s": round(float(self.time_s), 4),
+            **({} if self.camera is None else {"camera": self.camera.to_json()}),
         }

@@ -343,7 +343,8 @@ def _update_scene(state: SceneState, view: View, config: UpdateConfig, *, optimi
         records.append(rec)
         change[len(ids) + j] = masks.masks[mi]
     return UpdateResult(frame=view.frame, instances=tuple(records), new_masks=new, change_masks=change,
-                        projected=proj_all.label, time_s=time.perf_counter() - t0, added=tuple(a for _, a, _ in added))
+                        projected=proj_all.label, time_s=time.perf_counter() - t0, added=tuple(a for _, a, _ in added),
+                        camera=view.camera)
 
 
 def _add_new(state: SceneState, view: View, config: UpdateConfig, records: list[InstanceUpdate], new_idx: list[int],

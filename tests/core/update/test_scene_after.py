@@ -244,3 +244,47 @@ def test_python_grasp_request_is_the_commands(chain):
     np.testing.assert_array_equal(req0.points, seg.points)
     with pytest.raises(SceneError, match=f"instance {removed} was removed by update 1"):
         request_from_run(run, removed)
+
+
+def test_the_post_cameras_are_read_from_update_json_and_older_files_still_work(run_copy, chain, monkeypatch):
+    """An update records its post view's camera in update.json ("camera"); ``grasping.request.scene_now``
+    orients the added instance's normals from it without loading the scene folder. update.json
+    files written before (no "camera") still get the scene folder's view of the frame: the same
+    normals."""
+    import clutt3r_core.io
+    from clutt3r_core.grasping.request import scene_now
+    from clutt3r_core.scene import Camera
+    from clutt3r_core.update.scene_after import post_cameras
+    from clutt3r_core.update.update import update_scene
+    from tests.core.update.test_update import FAST
+
+    _, _, seg, _, _, k = chain
+    view = tiny_scene().initial_views[0]
+    # the writer: an update made now carries its view's camera, exactly (JSON floats round-trip)
+    res = update_scene(state_from_segmentation(seg), view, FAST)
+    folder = save_state(state_from_segmentation(seg), run_copy.parent / "fresh", res)
+    cam = Camera.from_json(json.loads((folder / "update.json").read_text())["camera"])
+    for x in ("K", "T_world_camera"):
+        np.testing.assert_array_equal(getattr(cam, x), getattr(view.camera, x))
+    assert (cam.width, cam.height) == (view.camera.width, view.camera.height)
+
+    # the reader, on update.json files written before: no camera recorded, the scene folder's view
+    assert post_cameras(run_copy, 2) == {}
+    old = scene_now(run_copy, 2)
+    plus_z = scene_after(run_copy, 2)  # no eyes at all: +z
+    sel = old.instance == k
+    assert not np.array_equal(old.normals[sel], plus_z.normals[sel])  # the camera matters to the test
+
+    # ... and on files that record it: the scene folder is not read, the same normals
+    for d in sorted((run_copy / "updates").iterdir()):
+        doc = json.loads((d / "update.json").read_text())
+        (d / "update.json").write_text(json.dumps({**doc, "camera": view.camera.to_json()}))
+
+    def no_scene(*a, **kw):
+        raise AssertionError("the scene folder was loaded")
+
+    monkeypatch.setattr(clutt3r_core.io, "load_scene", no_scene)
+    assert set(post_cameras(run_copy, 2)) == {view.frame}
+    new = scene_now(run_copy, 2)
+    np.testing.assert_array_equal(new.normals, old.normals)
+    np.testing.assert_array_equal(new.points, old.points)

@@ -93,7 +93,8 @@ def test_displaced_object_is_moved_and_the_update_chains(tmp_path):
     traces = load_pose_traces(d1)
     assert len(traces[0]) == len(r0.pose.trace)
     doc = json.loads((d1 / "update.json").read_text())
-    assert set(doc) == {"frame", "instances", "new_masks", "time_s", "embedder"} and doc["embedder"] == "appearance-hsv"
+    assert set(doc) == {"frame", "instances", "new_masks", "time_s", "embedder", "camera"}
+    assert doc["embedder"] == "appearance-hsv" and doc["camera"] == camera(**NEW_CAM).to_json()  # the post view's
     assert set(doc["instances"][0]) == {"instance", "status", "iou_before", "iou_after", "T_world"}
     assert doc["instances"][1]["T_world"] is None and np.asarray(doc["instances"][0]["T_world"]).shape == (4, 4)
     # update 2 from state 1: the same view again changes nothing; then object 1 is grasped
