@@ -90,7 +90,10 @@ def with_embedder(state, name: str, embedder=None, scene: str | Path | None = No
 
         seg = load_run(state.run)
         lab = run_labels(state.run, seg, entries=state.labels.entries)
-        rows = run_share(lab.instance, seg.instance, lab.num_ids, len(allrows)) @ allrows
+        share = run_share(lab.instance, seg, lab.num_ids)
+        if share.shape[1] != len(allrows):
+            raise SceneError(f"{state.run}: {len(allrows)} instance embeddings for a run of {share.shape[1]} instances")
+        rows = share @ allrows
         rows /= np.maximum(np.linalg.norm(rows, axis=1, keepdims=True), 1e-12)
         allrows = rows.astype(np.float32)
     ids = np.asarray(state.instance_ids)

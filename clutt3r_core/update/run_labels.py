@@ -29,7 +29,7 @@ from clutt3r_core.errors import SceneError, SceneFileError
 from clutt3r_core.run_files import CORRECTION_LOG as LOG_NAME
 
 __all__ = ["LabelSource", "RunLabels", "run_labels", "labels_sha256", "chain_source", "labels_change", "stale_note",
-           "run_share", "LOG_NAME"]
+           "run_share", "fused_count", "LOG_NAME"]
 
 
 def labels_sha256(instance: np.ndarray) -> str:
@@ -148,14 +148,30 @@ def run_labels(run_dir: str | Path, seg=None, entries: int | None = None) -> Run
     return RunLabels(lab.instance, ids, lab.num_instances, LabelSource(n, active, labels_sha256(lab.instance), cats))
 
 
-def run_share(labels: np.ndarray, run_instance: np.ndarray, num_ids: int, num_run: int) -> np.ndarray:
-    """(num_ids, num_run) float64: row i = the share of corrected id i's points that each run
-    instance had (rows sum to 1; 0 for an id of background points only). Carries any per-run-
-    instance quantity (embeddings, query evidence) to corrected ids: a merge mixes its parts by
-    size, a split-off part keeps its source's."""
-    lab, run = np.asarray(labels), np.asarray(run_instance)
+def fused_count(seg) -> int:
+    """Points of a run's cloud (``pipeline.Segmentation``) that are fused voxels: all but the
+    fusion's rim voxels, its last ``trace.surface.rim`` points (``clutt3r_core.rim``; 0 with the
+    voxel-mean fusion and in older traces). The update's state holds these (``state_from_segmentation``)."""
+    surface = seg.trace.surface  # Trace.surface: None with the voxel-mean fusion and in older traces
+    return len(seg.points) - (surface.rim if surface is not None else 0)
+
+
+def run_share(labels: np.ndarray, seg, num_ids: int) -> np.ndarray:
+    """(num_ids, seg.num_instances) float64: row i = the share of corrected id i's points that
+    each run instance had (rows sum to 1; 0 for an id of background points only), counted over
+    the run's fused points (``fused_count``: the rim voxels left out, as the update's state leaves
+    them out). Carries any per-run-instance quantity (the state's stored embeddings, a
+    re-embedding with ``--embedder``, the query's evidence) to corrected ids: a merge mixes its
+    parts by size, a split-off part keeps its source's.
+
+    Why without the rim voxels: each is one unverified raw point at a depth edge whose run label
+    is its neighbours' vote after the grouping (no mask evidence of its own; on real depth many
+    lie just beside their object), and the stored embedding describes the instance the update
+    matches, whose points are the fused ones."""
+    n = fused_count(seg)
+    lab, run = np.asarray(labels)[:n], np.asarray(seg.instance)[:n]
     both = (lab >= 0) & (run >= 0)
-    share = np.zeros((int(num_ids), int(num_run)))
+    share = np.zeros((int(num_ids), int(seg.num_instances)))
     np.add.at(share, (lab[both], run[both]), 1.0)
     return share / np.maximum(share.sum(axis=1, keepdims=True), 1.0)
 

@@ -414,7 +414,7 @@ def chain_inputs(run_dir: str | Path, step: int | None = None, seg=None,
             raise SceneFileError(run_dir / LOG_NAME,
                                  f"replaying its first {st.labels.entries} entries does not give the labels "
                                  f"{dirs[0].name} was computed from (the log was rewritten?)")
-        share = run_share(lab.instance, seg.instance, lab.num_ids, seg.num_instances)
+        share = run_share(lab.instance, seg, lab.num_ids)
         inst0, n_run, ids0 = lab.instance, lab.num_ids, lab.ids
     if (run_dir / LOG_NAME).is_file():  # always there for a corrected chain (run_labels above needs it)
         stale = stale_note(run_dir, seg)

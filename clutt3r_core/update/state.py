@@ -36,7 +36,7 @@ import numpy as np
 
 from clutt3r_core.errors import SceneError, SceneFileError
 from clutt3r_core.io.images import atomic_write_bytes, atomic_write_npz
-from clutt3r_core.update.run_labels import LabelSource, RunLabels
+from clutt3r_core.update.run_labels import LabelSource, RunLabels, fused_count, run_share
 from clutt3r_core.update.types import LOSS_NAMES, PoseTrace, UpdateResult
 
 __all__ = [
@@ -200,8 +200,7 @@ def state_from_segmentation(seg, voxel_size: float = 0.005, run: Path | None = N
     # 0.02-0.05 lower and the moved clamp was reported static; without them the update is the
     # one of the cloud without rim voxels (identical results). The viewer still moves them with
     # their instance (it reads the run's points).
-    surface = seg.trace.surface  # Trace.surface: None with the voxel-mean fusion and in older traces
-    n = len(seg.points) - (surface.rim if surface is not None else 0)
+    n = fused_count(seg)
     if labels is None:
         return SceneState(points=seg.points[:n], colors=seg.colors[:n], instance=seg.instance[:n],
                           instance_ids=np.arange(k, dtype=np.int32), embeddings=emb,
@@ -210,11 +209,7 @@ def state_from_segmentation(seg, voxel_size: float = 0.005, run: Path | None = N
         raise SceneError(f"corrected labels have {len(labels.instance)} points, the run {len(seg.points)}")
     inst = labels.instance[:n]
     ids = np.unique(inst[inst >= 0]).astype(np.int32)  # rim-only instances have no point here
-    # weights[c, b] = points of corrected instance c that run instance b had
-    both = (inst >= 0) & (seg.instance[:n] >= 0)
-    w = np.zeros((labels.num_ids, k), np.float64)
-    np.add.at(w, (inst[both], seg.instance[:n][both]), 1.0)
-    cemb = (w[ids] @ emb).astype(np.float32)
+    cemb = (run_share(labels.instance, seg, labels.num_ids)[ids] @ emb).astype(np.float32)
     norm = np.linalg.norm(cemb, axis=1, keepdims=True)
     cemb = np.divide(cemb, norm, out=np.zeros_like(cemb), where=norm > 0)
     return SceneState(points=seg.points[:n], colors=seg.colors[:n], instance=inst, instance_ids=ids,

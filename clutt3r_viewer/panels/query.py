@@ -104,7 +104,7 @@ def added_instance_evidence(rq, data) -> tuple[object, frozenset[int]]:
     if not np.array_equal(i0, seg.instance):
         from clutt3r_core.update.run_labels import run_share
 
-        share = run_share(i0, seg.instance, max(int(i0.max(initial=-1)) + 1, seg.num_instances), seg.num_instances)
+        share = run_share(i0, seg, max(int(i0.max(initial=-1)) + 1, seg.num_instances))
         base = corrected_evidence(base, share, rq.evidence.label_embeddings is not None)
     adds = [(a.instance, u.frame, a.mask_id) for u in data.updates if u.result is not None
             for a in u.result.added if a.mask_id >= 0]

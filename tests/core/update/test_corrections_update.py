@@ -229,3 +229,59 @@ def test_query_on_a_corrected_chain_ranks_the_corrected_ids(tmp_path):
     st2 = with_embedder(st, "fake-ground", embedder=FakeGrounder())
     assert st2.instance_ids.tolist() == st.instance_ids.tolist()
     np.testing.assert_allclose(st2.embedding_of(k), st2.embedding_of(a), atol=1e-6)
+
+
+def test_one_share_over_the_fused_points_for_the_state_the_query_and_the_embedder(tmp_path):
+    """A run whose last points are rim voxels (``trace.surface.rim``) with a merge: the stored
+    embedding of the merged id (the update's state), the query's ``SceneAfter.run_share`` and a
+    re-embedding with ``--embedder`` mix the run instances by one share, counted over the fused
+    points only (``run_labels.run_share``), which differs here from the whole cloud's."""
+    from dataclasses import replace
+
+    from clutt3r_core.update.embed import with_embedder
+    from clutt3r_core.update.run_labels import fused_count, run_share
+    from clutt3r_core.update.state import apply_update
+
+    seg0 = tiny_segmentation()
+    a, b = _largest(seg0, 2)
+    # the rim: 60 % of a's points and 5 % of b's moved to the end of the cloud
+    ia, ib = np.flatnonzero(seg0.instance == a), np.flatnonzero(seg0.instance == b)
+    rim = np.concatenate([ia[: len(ia) * 6 // 10], ib[: len(ib) // 20]])
+    order = np.concatenate([np.setdiff1d(np.arange(len(seg0.points)), rim), rim])
+    seg = replace(seg0, points=seg0.points[order], colors=seg0.colors[order], normals=seg0.normals[order],
+                  instance=seg0.instance[order], counts=seg0.counts[order],
+                  trace=replace(seg0.trace, surface=replace(seg0.trace.surface, rim=len(rim))))
+    assert fused_count(seg) == len(seg.points) - len(rim)
+    run = save_run(seg, tmp_path / "run")
+    _edit(run, seg, Merge(into=a, other=b))
+    lab = run_labels(run, seg)
+    share = run_share(lab.instance, seg, lab.num_ids)
+    whole = np.zeros_like(share)
+    both = (lab.instance >= 0) & (seg.instance >= 0)
+    np.add.at(whole, (lab.instance[both], seg.instance[both]), 1.0)
+    whole /= np.maximum(whole.sum(axis=1, keepdims=True), 1)
+    assert abs(share[a, b] - whole[a, b]) > 1e-3  # the rim makes a difference here
+
+    st = state_from_run(run)
+    emb = state_from_segmentation(seg).embeddings  # the run instances' unit embeddings
+    want = share[st.instance_ids] @ emb.astype(np.float64)
+    want /= np.linalg.norm(want, axis=1, keepdims=True)
+    np.testing.assert_allclose(st.embeddings, want, atol=1e-6)
+    res = update_scene(st, tiny_scene().initial_views[0], FAST)
+    save_state(apply_update(st, res), run / "updates" / "01_frame_000008", res)
+    np.testing.assert_array_equal(scene_after(run, seg=seg).run_share, share)  # the query's share
+
+    class Rows:  # a re-embedding with another embedder: rows = the run instances' (unit axes)
+        name = "rows"
+
+    import clutt3r_core.update.embed as embed_mod
+
+    rows = np.eye(seg.num_instances, dtype=np.float32)
+    orig = embed_mod.run_instance_embeddings
+    embed_mod.run_instance_embeddings = lambda run_dir, emb_obj, scene=None: rows
+    try:
+        re = with_embedder(st, "rows", embedder=Rows())
+    finally:
+        embed_mod.run_instance_embeddings = orig
+    mixed = share[st.instance_ids] / np.linalg.norm(share[st.instance_ids], axis=1, keepdims=True)
+    np.testing.assert_allclose(re.embeddings, mixed, atol=1e-6)
