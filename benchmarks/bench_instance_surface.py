@@ -55,12 +55,15 @@ def main() -> None:
     ap.add_argument("--difficulties", nargs="+", default=["easy", "intermediate", "hard"])
     ap.add_argument("--depth-noise", default="realsense")
     ap.add_argument("--radii", type=float, nargs="+", default=[0.0, 0.010], help="instance_surface.radius, metres")
+    ap.add_argument("--variants", nargs="*", default=[],
+                    help='more variants as JSON objects of InstanceSurfaceConfig fields, e.g. \'{"radius": 0.01, "leave_margin": 0.001}\'')
     ap.add_argument("--check-pipeline", action="store_true")
     ap.add_argument("--cache", default="/tmp/bench_cache")
     args = ap.parse_args()
     specs = [s for s in synth_suite(max(args.seeds) + 1, args.difficulties, depth_noise=args.depth_noise)
              if int(s.name[-4:]) in args.seeds]
-    rows: dict[float, list[dict]] = {r: [] for r in args.radii}
+    variants = [{"radius": r} for r in args.radii] + [json.loads(v) for v in args.variants]
+    rows: dict[str, list[dict]] = {json.dumps(v): [] for v in variants}
     for spec in specs:
         scene = _load_prepared(args.cache, spec).scene  # generated into the cache when missing
         gt = scene.ground_truth
@@ -69,26 +72,28 @@ def main() -> None:
         seg = segment(scene, cfg, progress=False)
         t_seg = time.process_time() - t0
         obj = seg.instance >= 0
-        for r in args.radii:
+        for var in variants:
+            r = var["radius"]
             t0 = time.process_time()
-            pts = (smooth_instances(seg.points, seg.instance, InstanceSurfaceConfig(radius=r), seg.counts,
+            pts = (smooth_instances(seg.points, seg.instance, InstanceSurfaceConfig(**var), seg.counts,
                                     cfg.pointcloud.voxel_size).points if r > 0 else seg.points)
             t_step = time.process_time() - t0
             if args.check_pipeline and r > 0:
-                other = segment(scene, with_fields(cfg, {"instance_surface.radius": r}), progress=False)
+                other = segment(scene, with_fields(cfg, {f"instance_surface.{k}": v for k, v in var.items()}),
+                                progress=False)
                 assert np.array_equal(other.points, pts) and np.array_equal(other.instance, seg.instance)
             res, _ = evaluate_instances(pts, seg.instance, seg.scores, gt)
             b = error_breakdown(pts, seg.instance, seg.scores, gt)
             d = surface_distance(gt.points, gt.point_labels, pts[obj].astype(np.float64))
-            row = dict(scene=spec.name, radius=r, ap25=round(res.ap25, 1), ap50=round(res.ap50, 1),
+            row = dict(scene=spec.name, variant=var, ap25=round(res.ap25, 1), ap50=round(res.ap50, 1),
                        ap=round(res.ap, 1), pred=res.num_pred, gt=res.num_gt, ceiling=round(b.ap_all_fixed, 1),
                        off_gt_cells=b.wrong_cells[1], hole_cells=b.wrong_cells[0],
                        d_med_mm=round(1e3 * float(np.median(d)), 3), d_p90_mm=round(1e3 * float(np.percentile(d, 90)), 3),
                        cpu_step_s=round(t_step, 3), cpu_segment_s=round(t_seg, 2))
             print(json.dumps(row), flush=True)
-            rows[r].append(row)
-    for r, rs in rows.items():
-        print("MEAN radius", r, json.dumps({c: round(float(np.mean([x[c] for x in rs])), 3)
+            rows[json.dumps(var)].append(row)
+    for v, rs in rows.items():
+        print("MEAN", v, json.dumps({c: round(float(np.mean([x[c] for x in rs])), 3)
                                             for c in ("ap25", "ap50", "ap", "pred", "ceiling", "off_gt_cells",
                                                       "hole_cells", "d_med_mm", "d_p90_mm", "cpu_step_s",
                                                       "cpu_segment_s")}))

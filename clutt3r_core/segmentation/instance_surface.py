@@ -53,12 +53,16 @@ class InstanceSurfaceConfig:
     but out of the thin slivers a surface clips at a cell corner (tuning scenes: 41 / 136 GT
     object cells lost on easy_0002 / hard_0002, the new holes cost more AP than the off-GT
     cells gave back on hard scenes)."""
+    leave_margin: float = 0.0
+    """With ``keep_in_voxel``: a point leaves its voxel only when the fitted surface misses the voxel
+    by more than this, metres (a surface that clips a cell's corner by less than the fit's own
+    error keeps its sample there)."""
     include_unlabelled: bool = False
     """Also smooth the unlabelled points (-1) among themselves (the table and background)."""
 
     def __post_init__(self) -> None:
-        if self.radius < 0 or self.max_move <= 0:
-            raise SceneError("InstanceSurfaceConfig: radius must be >= 0 and max_move > 0 (metres)")
+        if self.radius < 0 or self.max_move <= 0 or self.leave_margin < 0:
+            raise SceneError("InstanceSurfaceConfig: radius and leave_margin must be >= 0 and max_move > 0 (metres)")
         if self.k < 6 or self.min_neighbours < 6 or self.min_neighbours > self.k:
             raise SceneError("InstanceSurfaceConfig: need 6 <= min_neighbours <= k (a quadric has 6 unknowns)")
 
@@ -122,16 +126,18 @@ def _project(q: np.ndarray, nb: np.ndarray, w: np.ndarray) -> np.ndarray:
     return q + (coef[:, 0] - qh)[:, None] * vec[:, :, 0], n
 
 
-def _into_voxel(p: np.ndarray, proj: np.ndarray, n: np.ndarray, vs: float) -> np.ndarray:
+def _into_voxel(p: np.ndarray, proj: np.ndarray, n: np.ndarray, vs: float, margin: float = 0.0) -> np.ndarray:
     """Where the fitted surface (its tangent plane at ``proj``, normal ``n``) crosses the voxel of
     ``p``, the point of that plane inside the voxel nearest to ``proj`` (alternating projections);
     elsewhere ``proj`` itself: a voxel the local surface does not pass through is off the
-    surface, and its point joins the surface in the voxel next to it."""
+    surface, and its point joins the surface in the voxel next to it. A plane that misses the voxel
+    by less than ``margin`` (metres) counts as crossing it (the point goes to the voxel's point
+    nearest to the plane)."""
     lo = np.floor(p / vs) * vs
     eps = 1e-6 * vs
     centre = lo + 0.5 * vs
     with np.errstate(invalid="ignore"):
-        crosses = np.abs(np.einsum("ni,ni->n", centre - proj, n)) <= 0.5 * vs * np.abs(n).sum(1)
+        crosses = np.abs(np.einsum("ni,ni->n", centre - proj, n)) <= 0.5 * vs * np.abs(n).sum(1) + margin
     x = proj[crosses]
     nn, l0 = n[crosses], lo[crosses]
     for _ in range(8):
@@ -199,7 +205,7 @@ def smooth_instances(points: np.ndarray, instance: np.ndarray, cfg: InstanceSurf
     if cfg.keep_in_voxel and voxel_size > 0:
         # the fusion's invariant: a voxel's point (the mean of the raw points in it) lies in that
         # voxel; a projection that leaves it takes the voxel's point nearest to it
-        out = _into_voxel(p.astype(np.float64), out, nrm, voxel_size)
+        out = _into_voxel(p.astype(np.float64), out, nrm, voxel_size, cfg.leave_margin)
     shift = np.linalg.norm(out - p, axis=1)
     bad = ~np.isfinite(shift) | (shift > cfg.max_move)
     out[bad] = p[bad]

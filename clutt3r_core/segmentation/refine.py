@@ -30,7 +30,7 @@ from clutt3r_core.segmentation.grouping import GroupingResult, MergeStep
 from clutt3r_core.segmentation.vote import VoteResult, renumber_by_score
 
 __all__ = ["RefineConfig", "won_fractions", "absorb_fragments", "ABSORB_STAGE", "weak_echoes", "table_contact",
-           "ContactLabels", "support_levels", "contact_labels"]
+           "ContactLabels", "support_levels", "contact_labels", "contact_on", "labels_before_contact"]
 
 ABSORB_STAGE = "absorb"
 """``MergeStep.stage`` of a fragment absorption."""
@@ -407,3 +407,24 @@ def contact_labels(points: np.ndarray, normals: np.ndarray, instance: np.ndarray
         cleared[lab] = h[lab] - level[inst[lab]] < cfg.contact_height
         inst[cleared] = -1
     return ContactLabels(inst, level, noise, filled & ~cleared, cleared & ~filled)
+
+
+def contact_on(cfg: RefineConfig) -> bool:
+    """Whether ``contact_labels`` changes anything with ``cfg`` (the contact or the fill is on)."""
+    return cfg.contact_height > 0 or cfg.contact_fill_high > cfg.contact_fill_low
+
+
+def labels_before_contact(sv_label: np.ndarray, sv_labels: np.ndarray, points: np.ndarray, normals: np.ndarray,
+                          counts: np.ndarray, voxel: float, cfg: RefineConfig) -> np.ndarray:
+    """(n,) int64: the segmented cloud's labels as the vote left them, before ``contact_labels``.
+
+    sv_label: (K,) the vote's instance per super-voxel (``VoteResult.sv_label``); sv_labels: (n,)
+    super-voxel per point of the segmented cloud (a run's first n points, rim voxels excluded);
+    points, normals, counts: those points' (n, 3) metres, (n, 3) unit, (n,) raw points; voxel: the
+    fusion's voxel edge, metres; cfg: the run's refine config (its weak echoes are applied again:
+    they are a pure function of the stored cloud). The pipeline computes exactly this before the
+    rim attach and the contact, so a run's labels without the contact rule need no extra storage.
+    """
+    inst = np.asarray(sv_label, np.int64)[np.asarray(sv_labels, np.int64)]
+    echo = weak_echoes(points, normals, counts, voxel, cfg.weak_echo_ratio)
+    return np.where(echo, -1, inst)

@@ -185,3 +185,21 @@ def test_contact_labels_invariants(seed, height, low, span):
         f = r.filled & (r.instance == k)
         if f.any() and (inst == k).any():
             assert (cKDTree(p[inst == k]).query(p[f])[0] <= cfg.contact_fill_distance + 1e-12).all()
+
+
+def test_update_state_reads_the_vote_labels_under_the_contact_rule():
+    from clutt3r_core.config import SegmentConfig, with_fields
+    from clutt3r_core.pipeline import segment
+    from clutt3r_core.synth.generator import SynthConfig, generate_scene
+    from clutt3r_core.update.state import state_from_segmentation
+
+    # the update's geometry must not change with the contact relabelling (sample_seq1's clamp was
+    # read static with it): its state is the one of the run with the rule off, point for point
+    scene = generate_scene(SynthConfig(seed=0, preset="easy", views=3, width=320, height=240, n_objects=3,
+                                       depth_noise="realsense"), progress=False)
+    on = segment(scene, with_fields(SegmentConfig(), {"refine.contact_height": 0.003, "refine.contact_fill_low": 0.004,
+                                                      "refine.contact_fill_high": 0.012}))
+    off = segment(scene)
+    assert not np.array_equal(on.instance, off.instance)
+    s_on, s_off = state_from_segmentation(on), state_from_segmentation(off)
+    assert np.array_equal(s_on.instance, s_off.instance) and np.array_equal(s_on.points, s_off.points)
