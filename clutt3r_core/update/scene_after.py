@@ -5,8 +5,11 @@ grasp AGAIN. The second query must not rank the grasped (removed) object, the gr
 object the robot pushed must be planned where it is now, checked against the cloud as it is
 now, and an object the grasp revealed (added, status "new") must be rankable and graspable.
 
-``scene_after(run, step)`` builds that scene from the run folder and its saved chain
-(``RUN/updates/*``, ``update.state``): the run's whole fused cloud (rim voxels included, as
+``build_scene_after(ChainInputs)`` builds that scene, a pure function over what it is made
+from; ``chain_inputs(run, step)`` reads those inputs from the run folder and its saved chain
+(``RUN/updates/*``, ``update.state``), ``scene_after`` is the two, and the viewer fills the same
+inputs from the chain it loaded (``clutt3r_viewer.scene_step.chain_inputs_of``), so the scene a
+tab shows is the one the commands see. It is the run's whole fused cloud (rim voxels included, as
 ``clutt3r grasp`` uses it at step 0) with removed instances' points left out, displaced ones
 moved by their composed motions (normals turned with them), plus the added instances' points
 (from the state of that step, already moved by later updates) with PCA normals oriented
