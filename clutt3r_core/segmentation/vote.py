@@ -21,7 +21,7 @@ import numpy as np
 
 from clutt3r_core.errors import SceneError
 
-__all__ = ["VoteConfig", "VoteResult", "supervoxel_vote", "renumber_by_score", "VOTE_REASONS"]
+__all__ = ["VoteConfig", "VoteResult", "supervoxel_vote", "renumber_by_score", "VOTE_REASONS", "smooth_small_supervoxels"]
 
 VOTE_REASONS = ("labelled", "no_vote", "support", "coverage", "group_dropped")
 """Codes of ``VoteResult.sv_reason``, in the order the vote applies them: no group's masks
@@ -50,7 +50,28 @@ class VoteConfig:
     (surviving groups only gain, so one repeat settles it). False = the behaviour before the
     fix (trace v1). No effect when nothing is dropped."""
 
+    smooth_max_size: int = 0
+    """Ours (session 8), voxels; 0 = off: after the vote, a non-support super-voxel of at most
+    this many voxels takes the instance that most of its neighbours in other super-voxels hold
+    (``smooth_small_supervoxels``; never unlabels). Depth noise cuts object surfaces into
+    single-voxel super-voxels (the normal test of eq. 1 fails between noisy normals), and each
+    is voted alone by the masks' jittered edges: at object-object contacts and mask rims they
+    go to the neighbour or to nothing."""
+    smooth_k: int = 10
+    """Ours: neighbours (nearest voxels) read per voxel of a small super-voxel."""
+    smooth_min_agree: int = 6
+    """Ours: the super-voxel changes only when its neighbours in other super-voxels hold this
+    many votes (per voxel, summed over its voxels: ``min_agree`` x its voxels) for one
+    instance; unlabelled neighbours count as votes for no instance, so they block too."""
+    smooth_radius: float = 0.015
+    """Ours, metres: neighbours farther than this do not vote (three 5 mm voxels)."""
+
     def __post_init__(self) -> None:
+        if self.smooth_max_size < 0 or self.smooth_k < 1 or not 1 <= self.smooth_min_agree <= self.smooth_k:
+            raise SceneError("VoteConfig needs smooth_max_size >= 0, smooth_k >= 1 and 1 <= smooth_min_agree <= "
+                             f"smooth_k, got {self.smooth_max_size}, {self.smooth_k}, {self.smooth_min_agree}")
+        if not self.smooth_radius > 0:
+            raise SceneError(f"VoteConfig.smooth_radius must be > 0 m, got {self.smooth_radius}")
         if not 0.0 <= self.min_coverage <= 1.0:
             raise SceneError(f"VoteConfig.min_coverage must be in [0, 1], got {self.min_coverage}")
         if self.min_group_size < 1 or self.min_instance_points < 0:
@@ -216,3 +237,55 @@ def supervoxel_vote(
         sv_reason=reason,
         group_points=np.asarray(points, np.float32),
     )
+
+
+def smooth_small_supervoxels(points: np.ndarray, instance: np.ndarray, sv_labels: np.ndarray, support: np.ndarray,
+                             cfg: VoteConfig) -> np.ndarray:
+    """(N,) int32 labels with every small super-voxel relabelled by its neighbourhood (ours).
+
+    points: (N, 3) metres, the segmented voxels; instance: (N,) int instance per voxel, -1 = none
+    (the vote's, per voxel); sv_labels: (N,) super-voxel of each voxel; support: (K,) bool
+    support super-voxels (never changed: the vote never labels them). A non-support
+    super-voxel with at most ``cfg.smooth_max_size`` voxels reads the ``smooth_k`` nearest voxels
+    of each of its voxels within ``smooth_radius`` that lie in OTHER super-voxels; their labels
+    (-1 included) are pooled over the super-voxel, and when one instance holds at least
+    ``smooth_min_agree`` votes per voxel of the super-voxel it takes that instance. A -1
+    majority changes nothing (the rule never unlabels: the grasp planner reads unlabelled
+    points as foreign). One pass over the vote's labels (the order of the super-voxels does not
+    matter). ``smooth_max_size`` 0: the labels unchanged.
+    """
+    inst = np.asarray(instance).astype(np.int32).reshape(-1)
+    n = len(inst)
+    if cfg.smooth_max_size <= 0 or n < 2:
+        return inst
+    from clutt3r_core.normals import knn_query, knn_tree
+
+    svl = np.asarray(sv_labels, np.int64).reshape(-1)
+    sizes = np.bincount(svl)
+    cand = np.flatnonzero((sizes[svl] <= cfg.smooth_max_size) & ~np.asarray(support, bool)[svl])
+    if not len(cand):
+        return inst
+    pts = np.ascontiguousarray(points, np.float64)
+    k = min(cfg.smooth_k + 1, n)
+    d2, idx = knn_query(knn_tree(pts), pts[cand], k)
+    idx = idx.astype(np.int64)
+    ok = (d2 <= cfg.smooth_radius ** 2) & (svl[idx] != svl[cand][:, None])
+    lab = inst[idx]
+    n_lab = int(inst.max()) + 2  # labels -1..K-1 shifted by one
+    # votes per (candidate super-voxel, label): pooled over the super-voxel's voxels
+    sv_c, row_sv = np.unique(svl[cand], return_inverse=True)
+    key = np.repeat(row_sv, k)[ok.reshape(-1)] * n_lab + (lab[ok] + 1)
+    votes = np.bincount(key, minlength=len(sv_c) * n_lab).reshape(len(sv_c), n_lab)
+    obj = votes[:, 1:]
+    best = np.argmax(obj, axis=1) if obj.shape[1] else np.zeros(len(sv_c), np.int64)
+    top = obj[np.arange(len(sv_c)), best] if obj.shape[1] else np.zeros(len(sv_c))
+    # the winner must reach the quorum and beat every other label, -1 included
+    others = votes.copy()
+    others[np.arange(len(sv_c)), best + 1] = -1
+    take = (top >= cfg.smooth_min_agree * sizes[sv_c]) & (top > others.max(axis=1))
+    new_sv = np.full(len(sizes), -2, np.int64)
+    new_sv[sv_c[take]] = best[take]
+    out = inst.copy()
+    change = new_sv[svl] >= 0
+    out[change] = new_sv[svl][change]
+    return out
