@@ -203,3 +203,16 @@ def test_update_state_reads_the_vote_labels_under_the_contact_rule():
     assert not np.array_equal(on.instance, off.instance)
     s_on, s_off = state_from_segmentation(on), state_from_segmentation(off)
     assert np.array_equal(s_on.instance, s_off.instance) and np.array_equal(s_on.points, s_off.points)
+
+
+def test_contact_labels_leave_an_object_on_a_noisy_support_alone():
+    # the floor around the box as noisy as the real sample_seq1's (7-27 mm measured): nothing changes
+    p, n, inst, _ = _box_on_floor(0.0, noise=0.008)
+    cfg = RefineConfig(contact_height=0.003, contact_fill_low=0.004, contact_fill_high=0.012)
+    r = contact_labels(p, n, inst, 1, PLANE, cfg)
+    assert r.noise[0] > cfg.contact_max_noise
+    assert np.array_equal(r.instance, inst) and not r.filled.any() and not r.cleared.any()
+    # ... and a limit above its noise lets the rule act again
+    r = contact_labels(p, n, inst, 1, PLANE, RefineConfig(contact_height=0.003, contact_fill_low=0.004,
+                                                          contact_fill_high=0.012, contact_max_noise=0.05))
+    assert r.filled.any()
