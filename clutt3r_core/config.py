@@ -214,6 +214,7 @@ ADDED_AFTER_V1: dict[str, Any] = {
     "vote.smooth_max_size": 0,
     "vote.smooth_k": 10,
     "vote.smooth_min_agree": 6,
+    "vote.smooth_radius": 0.015,
     "refine.min_won_fraction": 0.0,
     "refine.weak_echo_ratio": 0.0,
     "refine.contact_height": 0.0,
