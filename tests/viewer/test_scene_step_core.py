@@ -75,6 +75,8 @@ def test_the_viewer_and_the_run_folder_give_the_builder_the_same_inputs(tiny_run
         sc = shown_scene(d, step, sub)
         np.testing.assert_array_equal(sc.points, ref.run_points[sub])
         np.testing.assert_array_equal(sc.instance, np.where(ref.gone, -1, ref.run_instance)[sub])
+        if step:  # the colour layers' labels (Session.layer_input reads the loader's point_instance)
+            np.testing.assert_array_equal(d.updates[step - 1].point_instance, np.where(ref.gone, -1, ref.run_instance))
         assert (k in sc.present.tolist()) == (step in (1, 2))
 
 
@@ -133,6 +135,7 @@ def test_a_corrected_chain_shows_the_commands_instances(tiny_run_dir, tiny_seg, 
     want = scene_after(run, 1)
     assert b not in want.present.tolist()
     np.testing.assert_array_equal(shown_scene(d, 1, np.arange(len(tiny_seg.points))).present, want.present)
+    np.testing.assert_array_equal(d.updates[0].point_instance, np.where(want.gone, -1, want.run_instance))
     got, (req, _, _) = scene_grasp_request(d, 1, a), request_from_run(run, a, step=1)
     for x in ("points", "normals", "target"):
         np.testing.assert_array_equal(getattr(got, x), getattr(req, x))
