@@ -22,7 +22,7 @@ computed from (``state.json`` "labels": the Edit tab's corrections replayed to t
 since then are not in it.
 
 ``compose_motions`` is the one place motions of a chain compose (``pose_new = T_world @
-pose_old``); the viewer's ``update_motions`` calls it.
+pose_old``).
 """
 
 from __future__ import annotations

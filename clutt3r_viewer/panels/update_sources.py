@@ -43,7 +43,7 @@ from clutt3r_viewer.events import PoseIterations, register_event_source
 from clutt3r_viewer.layers import GHOST_WHITE, ghost, register_color_layer
 from clutt3r_viewer.loading import register_update_loader
 
-__all__ = ["load_update_frames", "update_pose_events", "update_motions", "updated_scene", "updated_labels",
+__all__ = ["load_update_frames", "update_pose_events", "updated_scene", "updated_labels",
            "added_points", "added_instances", "UpdateSceneLayer", "GHOST_WHITE", "chain_instance", "stale_text"]
 
 
@@ -244,20 +244,6 @@ def update_pose_events(data) -> PoseIterations | None:
         added_from=cat(a_from, np.int64), added_until=cat(a_until, np.int64),
         step_update=np.asarray(step_update, np.int64), added_id=cat(a_id, np.int32),
         frames=tuple(int(u.frame) for u in data.updates))
-
-
-def update_motions(updates, n_instances: int) -> np.ndarray:
-    """(U + 1, I, 4, 4) world motion of every instance id after 0, 1, .., U updates of the
-    chain ``updates`` (``UpdateFrame``s, chain order; index 0 = the initial segmentation, all
-    identity). A displaced instance's motion composes as ``T_world(u) @ motion(u - 1)`` (issue
-    10: ``pose_new = T_world @ pose_old``; the core's ``update.scene_after.compose_motions``);
-    the others keep theirs. I also covers every id an update names."""
-    from clutt3r_core.update.scene_after import compose_motions
-
-    ids = [r.instance for u in updates if u.result is not None for r in u.result.instances]
-    steps = [[] if u.result is None else [(r.instance, r.T_world) for r in u.result.instances
-                                         if r.status == "displaced" and r.T_world is not None] for u in updates]
-    return compose_motions(steps, max(int(n_instances), 1 + max(ids, default=-1)))
 
 
 def chain_instance(data) -> np.ndarray:

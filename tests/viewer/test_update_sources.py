@@ -111,7 +111,8 @@ def test_updated_scene_moves_displaced_instances_along_the_chain(tiny_run_dir, t
     """The Updates tab's scene: after update u = the saved state u's points (poses composed along
     the chain), before update u = after update u - 1; removed instances are 'gone' from then on."""
     import clutt3r_viewer.panels.update_sources  # noqa: F401
-    from clutt3r_viewer.panels.update_sources import update_motions, updated_scene
+    from clutt3r_viewer.panels.update_sources import updated_scene
+    from clutt3r_viewer.scene_step import scene_after_of
 
     d, s1, s2 = _chain(tiny_run_dir, tiny_seg, tmp_path)
     idx = np.arange(len(tiny_seg.points))
@@ -133,9 +134,9 @@ def test_updated_scene_moves_displaced_instances_along_the_chain(tiny_run_dir, t
     after1, _, _ = updated_scene(d, 1, idx, after=True)
     np.testing.assert_allclose(after1[inst0 == 0, 0] - tiny_seg.points[inst0 == 0, 0], 0.07, atol=1e-9)
     assert np.abs(after1[inst0 == 1] - tiny_seg.points[inst0 == 1]).max() > 0.001  # turned
-    M = update_motions(d.updates, tiny_seg.num_instances)
-    assert M.shape == (3, tiny_seg.num_instances, 4, 4) and np.allclose(M[0], np.eye(4))
-    np.testing.assert_allclose(M[2, 0, 0, 3], 0.07)
+    M = [scene_after_of(d, step).motions for step in range(3)]  # the composed motions the points were moved by
+    assert M[2].shape == (tiny_seg.num_instances, 4, 4) and np.allclose(M[0], np.eye(4))
+    np.testing.assert_allclose(M[2][0, 0, 3], 0.07)
 
 
 def test_update_layer_ghosts_removed_instances(tiny_run_dir, tiny_seg, tmp_path):
