@@ -15,7 +15,7 @@ Importing this module registers:
   together; a shorter optimisation holds its last pose), composed with the motions of earlier
   updates; colour = the iteration's total loss;
 - the colour layer "update" (``register_color_layer``): the Updates tab's scene after (or
-  just before) the selected update, from ``updated_scene``: instances coloured by id, the points
+  just before) the selected update, from ``scene_step.shown_scene``: instances coloured by id, the points
   of removed instances pale (ghosts, left where they were last seen). Every tab shows that scene
   (``clutt3r_viewer.scene_step``), whatever the colour layer.
 
@@ -43,8 +43,8 @@ from clutt3r_viewer.events import PoseIterations, register_event_source
 from clutt3r_viewer.layers import GHOST_WHITE, ghost, register_color_layer
 from clutt3r_viewer.loading import register_update_loader
 
-__all__ = ["load_update_frames", "update_pose_events", "updated_scene", "updated_labels",
-           "added_points", "added_instances", "UpdateSceneLayer", "GHOST_WHITE", "chain_instance", "stale_text"]
+__all__ = ["load_update_frames", "update_pose_events", "UpdateSceneLayer", "GHOST_WHITE", "chain_instance",
+           "stale_text"]
 
 
 
@@ -85,7 +85,7 @@ def _text(doc: dict) -> str:
     f = lambda x: "-" if x is None else f"{x:.2f}"  # noqa: E731
     rows = [f"| {r['instance']} | {r['status']} | {f(r['iou_before'])} | {f(r['iou_after'])} |" for r in doc["instances"]]
     # masks that became instances (status "new", views with depth; the Updates tab draws
-    # their points, read from the update's state.npz, as a second cloud: added_points)
+    # their points, read from the update's state.npz, as a second cloud: ShownScene.added_points)
     added = [m["instance"] for m in doc.get("new_masks", []) if m.get("instance") is not None]
     return ("| instance | status | IoU before | IoU after |\n| --- | --- | --- | --- |\n" + "\n".join(rows)
             + f"\n\n{len(doc.get('new_masks', []))} new masks"
@@ -267,44 +267,6 @@ def stale_text(data, labels: np.ndarray) -> str | None:
     return (f"Stale: the {n} update(s) were computed before the corrections made since ({what}); their ids "
             f"are the older labelling's. Recompute: clutt3r update RUN --frame F --recompute "
             f"(moves RUN/updates aside, deletes nothing)")
-
-
-def updated_scene(data, u: int, idx: np.ndarray, after: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The run's points ``idx`` in the scene after update ``u`` of ``data.updates`` (``after=False``:
-    just before it, i.e. after update u - 1; u = -1: the initial segmentation).
-
-    Returns (positions (M, 3) float32 world metres: displaced instances moved by their composed
-    motions; instance (M,) int32 at that time, -1 = none or removed; gone (M,) bool: points of
-    instances removed by then, which stay where they were last seen): ``scene_step.shown_scene``'s.
-    """
-    from clutt3r_viewer.scene_step import shown_scene
-
-    sc = shown_scene(data, max(u + 1 if after else u, 0), idx)
-    return sc.points, sc.instance, sc.gone
-
-
-def added_instances(data, step: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
-    """The instances added (status "new") by the first ``step`` updates of ``data.updates`` and
-    not removed since: (points (A, 3) float32 world metres, moved by the later updates' motions;
-    instance (A,) int32; colours (A, 3) uint8; {id: frame of the update that added it}). They are
-    not in the run's cloud, so the Scene panel draws them as a second point cloud."""
-    from clutt3r_viewer.scene_step import scene_after_of
-
-    sa = scene_after_of(data, max(int(step), 0))
-    return sa.added_points, sa.added_instance, sa.added_colors, {k: f for k, (_, f) in sa.added.items()}
-
-
-def added_points(data, u: int, after: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """``added_instances``' points and ids in ``updated_scene``'s scene (after update ``u``, or
-    just before it)."""
-    pts, inst, _, _ = added_instances(data, u + 1 if after else u)
-    return pts, inst
-
-
-def updated_labels(data, u: int, idx: np.ndarray, after: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """The instance and gone arrays of ``updated_scene`` (the colour layer's part)."""
-    _, inst, gone = updated_scene(data, u, idx, after)
-    return inst, gone
 
 
 @dataclass(frozen=True)

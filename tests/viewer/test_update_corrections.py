@@ -23,8 +23,9 @@ def _two(seg) -> tuple[int, int, int]:
 def test_updates_tab_follows_the_corrected_chain_and_flags_later_edits(tiny_run_dir, tiny_seg, tmp_path):
     import clutt3r_viewer.panels.update_sources  # noqa: F401  (registers the loader)
     from clutt3r_viewer.loading import load_viewer_data
-    from clutt3r_viewer.panels.update_sources import stale_text, updated_labels, updated_scene
+    from clutt3r_viewer.panels.update_sources import stale_text
     from clutt3r_viewer.panels.updates import UpdatesPanel
+    from clutt3r_viewer.scene_step import shown_scene
 
     run = tmp_path / "run"
     shutil.copytree(tiny_run_dir, run)
@@ -39,9 +40,10 @@ def test_updates_tab_follows_the_corrected_chain_and_flags_later_edits(tiny_run_
     np.testing.assert_array_equal(d.updates[0].instance0, ann.current.instance)
     idx = np.arange(len(tiny_seg.points))
     was_b = tiny_seg.instance == b
-    inst, gone = updated_labels(d, 0, idx)
+    sc = shown_scene(d, 1, idx)  # after update 1
+    inst, gone = sc.instance, sc.gone
     assert np.all(inst[was_b] == a) and not gone.any()
-    pts, _, _ = updated_scene(d, 0, idx)  # the merged fragment moves with the instance it joined
+    pts = sc.points  # the merged fragment moves with the instance it joined
     np.testing.assert_allclose(pts[was_b, 0] - tiny_seg.points[was_b, 0], 0.05, atol=1e-5)
 
     app = SimpleNamespace(data=d, instance_labels=lambda: ann.current.instance)

@@ -47,7 +47,7 @@ def _chain(tiny_seg, run):
 def test_added_instances_are_loaded_moved_and_dropped_along_the_chain(tiny_run_dir, tiny_seg, tmp_path):
     import clutt3r_viewer.panels.update_sources  # noqa: F401  (registers the loader)
     from clutt3r_viewer.loading import load_viewer_data
-    from clutt3r_viewer.panels.update_sources import added_points
+    from clutt3r_viewer.scene_step import scene_after_of, scene_step
 
     run = tmp_path / "run"
     shutil.copytree(tiny_run_dir, run)
@@ -57,14 +57,19 @@ def test_added_instances_are_loaded_moved_and_dropped_along_the_chain(tiny_run_d
     assert f"| {k} | new |" in d.updates[0].text
     (a,) = d.updates[0].result.added
     np.testing.assert_allclose(a.points, pts, atol=1e-6)
-    p, inst = added_points(d, 0)  # after update 1: where it was added
+
+    def added_points(u: int, after: bool = True):  # the added instances in the tab's scene for (update u, after)
+        sa = scene_after_of(d, scene_step(u, after, len(d.updates)))
+        return sa.added_points, sa.added_instance
+
+    p, inst = added_points(0)  # after update 1: where it was added
     np.testing.assert_allclose(p, pts, atol=1e-6)
     assert np.all(inst == k)
-    assert len(added_points(d, 0, after=False)[0]) == 0  # before update 1: not there yet
-    p, _ = added_points(d, 1)  # after update 2: moved 3 cm along x
+    assert len(added_points(0, after=False)[0]) == 0  # before update 1: not there yet
+    p, _ = added_points(1)  # after update 2: moved 3 cm along x
     np.testing.assert_allclose(p - pts, np.tile([0.03, 0.0, 0.0], (len(pts), 1)), atol=1e-6)
-    assert len(added_points(d, 2)[0]) == 0  # after update 3: removed
-    np.testing.assert_allclose(added_points(d, 2, after=False)[0], p, atol=1e-9)
+    assert len(added_points(2)[0]) == 0  # after update 3: removed
+    np.testing.assert_allclose(added_points(2, after=False)[0], p, atol=1e-9)
 
 
 def test_scene_panel_draws_the_added_instances(tiny_run_dir, tiny_seg, tmp_path):

@@ -111,27 +111,31 @@ def test_updated_scene_moves_displaced_instances_along_the_chain(tiny_run_dir, t
     """The Updates tab's scene: after update u = the saved state u's points (poses composed along
     the chain), before update u = after update u - 1; removed instances are 'gone' from then on."""
     import clutt3r_viewer.panels.update_sources  # noqa: F401
-    from clutt3r_viewer.panels.update_sources import updated_scene
-    from clutt3r_viewer.scene_step import scene_after_of
+    from clutt3r_viewer.scene_step import scene_after_of, scene_step, shown_scene
 
     d, s1, s2 = _chain(tiny_run_dir, tiny_seg, tmp_path)
     idx = np.arange(len(tiny_seg.points))
+
+    def updated_scene(u: int, after: bool = True):  # the tab's scene for its (update u, after) choice
+        sc = shown_scene(d, scene_step(u, after, len(d.updates)), idx)
+        return sc.points, sc.instance, sc.gone
+
     inst0 = tiny_seg.instance
-    p_init, lab, gone = updated_scene(d, -1, idx)
+    p_init, lab, gone = updated_scene(-1)
     np.testing.assert_array_equal(p_init, tiny_seg.points)
     assert not gone.any() and np.array_equal(lab, inst0)
     for u, st in ((0, s1), (1, s2)):
-        pts, lab, gone = updated_scene(d, u, idx, after=True)
+        pts, lab, gone = updated_scene(u, after=True)
         for k in (0, 1):  # every kept instance's points are the saved state's (float32 there)
             np.testing.assert_allclose(pts[inst0 == k], st.points[st.instance == k], atol=1e-5)
         assert np.all(gone == (inst0 == 2)) and np.all(lab[inst0 == 2] == -1)
     # before update 1 = after update 0: instance 0 moved 5 cm, instance 1 not yet turned
-    before, _, _ = updated_scene(d, 1, idx, after=False)
-    after0, _, _ = updated_scene(d, 0, idx, after=True)
+    before, _, _ = updated_scene(1, after=False)
+    after0, _, _ = updated_scene(0, after=True)
     np.testing.assert_array_equal(before, after0)
     np.testing.assert_allclose(before[inst0 == 0, 0] - tiny_seg.points[inst0 == 0, 0], 0.05, atol=1e-9)
     np.testing.assert_array_equal(before[inst0 == 1], tiny_seg.points[inst0 == 1])
-    after1, _, _ = updated_scene(d, 1, idx, after=True)
+    after1, _, _ = updated_scene(1, after=True)
     np.testing.assert_allclose(after1[inst0 == 0, 0] - tiny_seg.points[inst0 == 0, 0], 0.07, atol=1e-9)
     assert np.abs(after1[inst0 == 1] - tiny_seg.points[inst0 == 1]).max() > 0.001  # turned
     M = [scene_after_of(d, step).motions for step in range(3)]  # the composed motions the points were moved by
