@@ -104,7 +104,9 @@ class ChainInputs:
         added_instance: (A,) int32 their ids.
         eyes: {frame: (3,) camera centre of that post view, world metres}, to orient the added
             instances' normals; a frame without one orients them towards +z.
-        run, stale, run_share: carried into ``SceneAfter`` as they are.
+        run, stale, run_share: carried into ``SceneAfter`` as they are (the viewer leaves
+            run_share None: no tab reads it from the scene; its Query tab mixes the evidence
+            once per chain, ``clutt3r_viewer.panels.query.added_instance_evidence``).
     """
 
     points: np.ndarray
@@ -178,7 +180,8 @@ class SceneAfter:
         run_share: (I0, K) float64 when the chain's ids are a corrected labelling: row i = the
             share of corrected id i's points that each run instance had (rows sum to 1, or 0 for
             an id made only of background points), to carry per-run-instance evidence (query)
-            to the corrected ids; None when the ids are the run's.
+            to the corrected ids; None when the ids are the run's (and in the viewer's scenes,
+            ``ChainInputs``).
     """
 
     step: int
