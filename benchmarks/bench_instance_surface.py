@@ -56,7 +56,8 @@ def main() -> None:
     ap.add_argument("--depth-noise", default="realsense")
     ap.add_argument("--radii", type=float, nargs="+", default=[0.0, 0.010], help="instance_surface.radius, metres")
     ap.add_argument("--variants", nargs="*", default=[],
-                    help='more variants as JSON objects of InstanceSurfaceConfig fields, e.g. \'{"radius": 0.01, "leave_margin": 0.001}\'')
+                    help="more variants as JSON objects of InstanceSurfaceConfig fields, "
+                         'e.g. \'{"radius": 0.01, "leave_margin": 0.001}\'')
     ap.add_argument("--check-pipeline", action="store_true")
     ap.add_argument("--cache", default="/tmp/bench_cache")
     args = ap.parse_args()
@@ -88,7 +89,8 @@ def main() -> None:
             row = dict(scene=spec.name, variant=var, ap25=round(res.ap25, 1), ap50=round(res.ap50, 1),
                        ap=round(res.ap, 1), pred=res.num_pred, gt=res.num_gt, ceiling=round(b.ap_all_fixed, 1),
                        off_gt_cells=b.wrong_cells[1], hole_cells=b.wrong_cells[0],
-                       d_med_mm=round(1e3 * float(np.median(d)), 3), d_p90_mm=round(1e3 * float(np.percentile(d, 90)), 3),
+                       d_med_mm=round(1e3 * float(np.median(d)), 3),
+                       d_p90_mm=round(1e3 * float(np.percentile(d, 90)), 3),
                        cpu_step_s=round(t_step, 3), cpu_segment_s=round(t_seg, 2))
             print(json.dumps(row), flush=True)
             rows[json.dumps(var)].append(row)
