@@ -39,8 +39,8 @@ import numpy as np
 from clutt3r_core.errors import Clutt3rError, SceneError, SceneFileError
 
 __all__ = ["SceneAfter", "ChainInputs", "build_scene_after", "chain_inputs", "scene_after", "chain_length",
-           "compose_motions", "resolve_step", "update_docs", "added_masks", "post_cameras", "oriented_normals",
-           "ADDED_NORMAL_KNN"]
+           "compose_motions", "resolve_step", "update_docs", "added_masks", "post_camera", "post_cameras",
+           "oriented_normals", "ADDED_NORMAL_KNN"]
 
 ADDED_NORMAL_KNN = 16
 """ours: neighbours of the PCA normals of added instances (the viewer's Grasps tab uses the same)."""
@@ -327,20 +327,25 @@ def added_masks(run_dir: str | Path, step: int,
             for m in doc.get("new_masks", []) if m.get("instance") is not None]
 
 
-def post_cameras(run_dir: str | Path, step: int, docs: list[tuple[Path, dict]] | None = None) -> dict:
-    """{frame: ``Camera``} of the post views of the first ``step`` updates, from their
-    ``update.json`` "camera" (written since session 8; older updates have none: absent here;
-    ``docs``: ``update_docs`` when already read)."""
+def post_camera(path: Path, doc: dict):
+    """The post view's ``Camera`` an update's ``update.json`` (``path``, parsed ``doc``) records
+    as "camera" (written since session 8), else None (older updates); ``SceneFileError`` when invalid."""
     from clutt3r_core.scene import Camera
 
-    out = {}
-    for path, doc in update_docs(run_dir, step) if docs is None else docs:
-        if doc.get("camera") is not None:
-            try:
-                out[int(doc["frame"])] = Camera.from_json(doc["camera"])
-            except (KeyError, TypeError, ValueError, SceneError) as e:
-                raise SceneFileError(path, f"invalid \"camera\" ({e})") from None
-    return out
+    if doc.get("camera") is None:
+        return None
+    try:
+        return Camera.from_json(doc["camera"])
+    except (KeyError, TypeError, ValueError, SceneError) as e:
+        raise SceneFileError(path, f"invalid \"camera\" ({e})") from None
+
+
+def post_cameras(run_dir: str | Path, step: int, docs: list[tuple[Path, dict]] | None = None) -> dict:
+    """{frame: ``Camera``} of the post views of the first ``step`` updates that record one
+    (``post_camera``; ``docs``: ``update_docs`` when already read)."""
+    cams = ((int(doc["frame"]), post_camera(path, doc)) for path, doc in
+            (update_docs(run_dir, step) if docs is None else docs))
+    return {f: c for f, c in cams if c is not None}
 
 
 def build_scene_after(inp: ChainInputs) -> SceneAfter:

@@ -101,7 +101,7 @@ def load_update_frames(run_dir: Path | None, scene: Scene | None) -> tuple[Updat
     if not dirs:
         return ()
     from clutt3r_core.update.run_labels import chain_source, run_labels
-    from clutt3r_core.update.scene_after import post_cameras
+    from clutt3r_core.update.scene_after import post_camera
 
     src = chain_source(run_dir)[1]
     if src is not None and src.entries > 0:  # the corrected labelling the chain was computed from
@@ -135,8 +135,7 @@ def load_update_frames(run_dir: Path | None, scene: Scene | None) -> tuple[Updat
         rgb = read_rgb(d / "overlay.png") if (d / "overlay.png").is_file() else (view.rgb if view else None)
         # the post view's camera as the update recorded it (since session 8; also for --image
         # updates, which the scene folder has no view of), else the scene's view of the frame
-        cam = post_cameras(run_dir, len(out) + 1, [(d / "update.json", doc)]).get(frame) \
-            or (view.camera if view else None)
+        cam = post_camera(d / "update.json", doc) or (view.camera if view else None)
         hw = (cam.height, cam.width) if cam is not None else (rgb.shape[:2] if rgb is not None else (1, 1))
         pi = np.where(np.isin(instance0, list(removed)), -1, instance0).astype(np.int32)
         out.append(UpdateFrame(frame=frame, rgb=rgb, camera=cam, point_instance=pi,

@@ -23,7 +23,7 @@ from hypothesis import given, settings, strategies as st
 
 from clutt3r_core.commands.grasp import grasp_command
 from clutt3r_core.commands.query import query_command
-from clutt3r_core.errors import Clutt3rError, SceneError
+from clutt3r_core.errors import Clutt3rError, SceneError, SceneFileError
 from clutt3r_core.language.colors import COLOR_WORDS, color_shares
 from clutt3r_core.query import RunQuery
 from clutt3r_core.runs import save_run
@@ -288,3 +288,10 @@ def test_the_post_cameras_are_read_from_update_json_and_older_files_still_work(r
     new = scene_now(run_copy, 2)
     np.testing.assert_array_equal(new.normals, old.normals)
     np.testing.assert_array_equal(new.points, old.points)
+
+    # a damaged record: one error naming the file
+    d = sorted((run_copy / "updates").iterdir())[0]
+    doc = json.loads((d / "update.json").read_text())
+    (d / "update.json").write_text(json.dumps({**doc, "camera": {"K": [[1, 0, 0]]}}))
+    with pytest.raises(SceneFileError, match=r"update\.json.*invalid \"camera\""):
+        post_cameras(run_copy, 2)
