@@ -30,7 +30,8 @@ from clutt3r_core.segmentation.grouping import GroupingResult, MergeStep
 from clutt3r_core.segmentation.vote import VoteResult, renumber_by_score
 
 __all__ = ["RefineConfig", "won_fractions", "absorb_fragments", "ABSORB_STAGE", "weak_echoes", "table_contact",
-           "ContactLabels", "support_levels", "contact_labels", "contact_on", "labels_before_contact"]
+           "ContactLabels", "support_levels", "contact_labels", "contact_on", "labels_before_contact",
+           "run_labels_before_contact"]
 
 ABSORB_STAGE = "absorb"
 """``MergeStep.stage`` of a fragment absorption."""
@@ -440,3 +441,33 @@ def labels_before_contact(sv_label: np.ndarray, sv_labels: np.ndarray, points: n
     inst = np.asarray(sv_label, np.int64)[np.asarray(sv_labels, np.int64)]
     echo = weak_echoes(points, normals, counts, voxel, cfg.weak_echo_ratio)
     return np.where(echo, -1, inst)
+
+
+def run_labels_before_contact(seg) -> np.ndarray:
+    """(N,) int: a segmentation's labels without the contact relabelling (``contact_labels``): its
+    own labels when the rule did not run (off, or plain fusion), else the vote's labels of the
+    segmented cloud (``labels_before_contact``) followed by its rim voxels attached to them again
+    (``rim.attach_labels`` with the run's settings: the pipeline's own computation, so the result
+    is exactly what the run held before the rule). ``seg``: a ``pipeline.Segmentation``.
+
+    Consumers that need an object's whole extent read these: the update's geometry (the moved
+    clamp of sample_seq1 was read static with its lowest millimetres unlabelled) and the grasp
+    planner's target (a target's own contact points counted as foreign, and its pairs changed:
+    two low objects of generated easy seed 0 lost their only successful grasps).
+    """
+    cfg = seg.trace.config
+    refine = getattr(cfg, "refine", None)
+    surface = seg.trace.surface
+    inst = np.asarray(seg.instance)
+    if refine is None or not contact_on(refine) or surface is None or surface.method != "tsdf":
+        return inst
+    n = len(inst) - (surface.rim or 0)
+    base = labels_before_contact(seg.trace.vote.sv_label, seg.sv_labels[:n], seg.points[:n], seg.normals[:n],
+                                 seg.counts[:n], cfg.pointcloud.voxel_size, refine)
+    if n == len(inst):
+        return base.astype(inst.dtype)
+    from clutt3r_core.rim import attach_labels
+
+    att = attach_labels(seg.points[:n], base, seg.points[n:], cfg.pointcloud.surface_rim_attach_k,
+                        cfg.pointcloud.surface_rim_attach_distance)
+    return np.concatenate([base, att.label]).astype(inst.dtype)

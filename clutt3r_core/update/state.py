@@ -219,19 +219,13 @@ def state_from_segmentation(seg, voxel_size: float = 0.005, run: Path | None = N
 
 def _geometry_labels(seg, n: int) -> np.ndarray:
     """(n,) the labels of the run's first n points that the update's geometry reads: the run's own,
-    or, where the run relabelled the object-support contact after the vote (``refine.contact_labels``,
-    off by default), the vote's labels before it (``refine.labels_before_contact``). Measured on
-    sample_seq1 frame 8: with the contact's labels the moved clamp was reported static (its lowest
-    millimetres unlabelled), as with the rim voxels above (docs/benchmark/strict-iou.md, session 8)."""
-    from clutt3r_core.segmentation.refine import contact_on, labels_before_contact
+    or, where the run relabelled the object-support contact after the vote (``refine.contact_labels``),
+    the labels before it (``refine.run_labels_before_contact``). Measured on sample_seq1 frame 8:
+    with the contact's labels the moved clamp was reported static (its lowest millimetres
+    unlabelled), as with the rim voxels above (docs/benchmark/strict-iou.md, session 8)."""
+    from clutt3r_core.segmentation.refine import run_labels_before_contact
 
-    cfg = seg.trace.config
-    refine = getattr(cfg, "refine", None)
-    surface = seg.trace.surface
-    if refine is None or not contact_on(refine) or surface is None or surface.method != "tsdf":
-        return seg.instance[:n]
-    return labels_before_contact(seg.trace.vote.sv_label, seg.sv_labels[:n], seg.points[:n], seg.normals[:n],
-                                 seg.counts[:n], cfg.pointcloud.voxel_size, refine).astype(seg.instance.dtype)
+    return run_labels_before_contact(seg)[:n]
 
 
 def state_from_run(run_dir: str | Path) -> SceneState:

@@ -187,7 +187,7 @@ def test_contact_labels_invariants(seed, height, low, span):
             assert (cKDTree(p[inst == k]).query(p[f])[0] <= cfg.contact_fill_distance + 1e-12).all()
 
 
-def test_update_state_reads_the_vote_labels_under_the_contact_rule():
+def test_update_state_and_grasp_target_read_the_labels_before_the_contact_rule():
     from clutt3r_core.config import SegmentConfig, with_fields
     from clutt3r_core.pipeline import segment
     from clutt3r_core.synth.generator import SynthConfig, generate_scene
@@ -203,6 +203,16 @@ def test_update_state_reads_the_vote_labels_under_the_contact_rule():
     assert not np.array_equal(on.instance, off.instance)
     s_on, s_off = state_from_segmentation(on), state_from_segmentation(off)
     assert np.array_equal(s_on.instance, s_off.instance) and np.array_equal(s_on.points, s_off.points)
+    # the whole run's labels before the rule (rim voxels attached again) are the rule-off run's, and
+    # so is every grasp request's target (the planner sees the object with its contact)
+    from clutt3r_core.grasping.request import request_from_segmentation
+    from clutt3r_core.segmentation.refine import run_labels_before_contact
+
+    assert on.trace.surface.rim > 0  # the rim voxels are exercised
+    assert np.array_equal(run_labels_before_contact(on), off.instance)
+    assert np.array_equal(run_labels_before_contact(off), off.instance)
+    for k in range(off.num_instances):
+        assert np.array_equal(request_from_segmentation(on, k).target, request_from_segmentation(off, k).target)
 
 
 def test_contact_labels_leave_an_object_on_a_noisy_support_alone():
