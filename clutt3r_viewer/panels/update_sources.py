@@ -40,7 +40,7 @@ from clutt3r_core.update.state import load_pose_traces, state_dirs
 
 from clutt3r_viewer.data import label_colors
 from clutt3r_viewer.events import PoseIterations, register_event_source
-from clutt3r_viewer.layers import GHOST_WHITE, ghost, register_color_layer
+from clutt3r_viewer.layers import GHOST_WHITE, ghost_removed, register_color_layer
 from clutt3r_viewer.loading import register_update_loader
 
 __all__ = ["load_update_frames", "update_pose_events", "UpdateSceneLayer", "GHOST_WHITE", "chain_instance",
@@ -284,7 +284,7 @@ class UpdateSceneLayer:
         from clutt3r_viewer.scene_step import scene_step, shown_scene
 
         sc = shown_scene(inp.data, scene_step(state.update, state.update_after, len(inp.data.updates)), inp.idx)
-        return ghost(label_colors(sc.instance), sc.gone, sc.last_instance)
+        return ghost_removed(label_colors(sc.instance), sc)
 
 
 register_update_loader(load_update_frames)
