@@ -194,14 +194,14 @@ def chain_steps(data) -> tuple[StepSummary, ...]:
         if res is None:
             out.append(StepSummary(j + 1, u.frame, (), (), (), ()))
             continue
-        before = shown_scene(data, j, np.arange(len(data.seg.points)))
+        before = scene_after_of(data, j)  # the whole cloud's (a ShownScene of it would copy it and be cached)
         disp = []
         for r in res.instances:
             if r.status != "displaced" or r.T_world is None:
                 continue
             T = np.asarray(r.T_world, np.float64)
-            sel = before.instance == r.instance
-            p = before.points[sel] if sel.any() else before.added_points[before.added_instance == r.instance]
+            sel = (before.run_instance == r.instance) & ~before.gone
+            p = before.run_points[sel] if sel.any() else before.added_points[before.added_instance == r.instance]
             c = p.mean(axis=0) if len(p) else np.zeros(3)
             move = float(np.linalg.norm(T[:3, :3] @ c + T[:3, 3] - c))
             ang = float(np.degrees(np.arccos(np.clip((np.trace(T[:3, :3]) - 1) / 2, -1.0, 1.0))))
