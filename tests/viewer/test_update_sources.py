@@ -164,3 +164,30 @@ def test_update_layer_ghosts_removed_instances(tiny_run_dir, tiny_seg, tmp_path)
     np.testing.assert_array_equal(col[~gone], own[~gone])
     st.update_after = False  # before update 0: the initial segmentation's colours
     np.testing.assert_array_equal(layer.colors(inp, st), own)
+
+
+def test_update_frames_take_the_post_view_camera_update_json_records(tiny_run_dir, tiny_seg, tiny_scene, tmp_path):
+    """An update that records its post view's camera (update.json "camera", session 8) has it in
+    the viewer without the scene folder (an ``--image`` update has no view there); one written
+    before (no "camera") has none, as before."""
+    from dataclasses import replace
+
+    import clutt3r_viewer.panels.update_sources  # noqa: F401  (registers the loader)
+    from clutt3r_viewer.loading import load_viewer_data
+
+    cam = tiny_scene.initial_views[0].camera
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run_dir, run)
+    s0 = state_from_segmentation(tiny_seg, run=run)
+    r1 = replace(_fake_update(s0, 8, k=0, shift=0.05, removed=None, n_iter=3), camera=cam)
+    s1 = apply_update(s0, r1)
+    save_state(s1, run / "updates" / "01_frame_000008", r1)
+    r2 = _fake_update(s1, 9, k=0, shift=0.02, removed=None, n_iter=3)  # as written before session 8
+    save_state(apply_update(s1, r2), run / "updates" / "02_frame_000009", r2)
+
+    d = load_viewer_data(run, images=False)
+    got = d.updates[0].camera
+    np.testing.assert_array_equal(got.K, cam.K)
+    np.testing.assert_array_equal(got.T_world_camera, cam.T_world_camera)
+    assert d.updates[0].result.change_masks.shape[1:] == (cam.height, cam.width)
+    assert d.updates[1].camera is None
