@@ -130,6 +130,9 @@ ADDITIONS: tuple[Addition, ...] = (
     Addition("rim-attach", "with the surface estimate, lone unmoved points next to kept voxels (object rims) are kept "
              "apart and take the majority label of their 6 nearest segmented voxels after the vote",
              (("pointcloud.surface_rim_neighbours", 1, 0),)),
+    Addition("table-contact", "with the surface estimate, object points under 2 mm above the support measured around "
+             "the object are left unlabelled (the update and the grasp target read the labels before it)",
+             (("refine.contact_height", 0.002, 0.0),)),
 )
 """Every rule of ours over the paper's explicit text that changes a result, with its switch.
 Choices the text leaves open (and that both presets share) are listed in docs/paper_choices.md."""

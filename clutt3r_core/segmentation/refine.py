@@ -66,25 +66,21 @@ class RefineConfig:
     +3.8 / +2.8 intermediate, +1.9 / +1.7 hard, AP@25 and AP@50 unchanged; chosen on seeds 2-3
     (0.2: +6.8 / +4.4 easy, +4.9 / +4.4 intermediate, +0.2 / +2.4 hard; 0.3 gained less on 5 of 6:
     it also drops true surface)."""
-    contact_height: float = 0.0
-    """Ours (issue 13 part 2), metres; 0 = off, the default (like ``weak_echo_ratio``: it gains
-    strict-IoU AP but costs what the labels are for, below). After the vote (and the rim
-    attach), object-labelled points closer than this above their object's support level are left
-    unlabelled (``contact_labels``; the level is the table or tray floor measured around the object,
-    ``support_levels``; session 4 measured it above the global plane, ``table_contact``): the depth noise mixes an object's lowest millimetres with the table, and
-    the super-voxels and rim voxels that straddle the contact hand table to the object. Measured
-    with RealSense-like depth (mean of 6 scenes, AP25 / AP50 unchanged, no scene lower): AP
-    51.7 -> 53.2 on tuning seeds 2-3, 53.6 -> 54.8 on held-out seeds 0-1; 3 mm gained less on
-    both (53.0, 54.4), 4-6 mm lost easy_0003 (49.4 -> 47.8-45.6). Applied only where the fusion ran the
-    surface estimate (noisy depth, ``pointcloud.surface`` "auto" decides): on clean depth the thin
-    cloud's lowest points are the object's, and easy_0000 lost an object at IoU 0.5 (AP50 100 ->
-    83.3, AP 69.7 -> 66.7). Why it is off: at 0.002 the grasp planner, which counts every unlabelled
-    point between the fingers as foreign, lost grasps (held-out seed 0: easy 43 grasps on 5 of 6
-    objects -> 40 on 4 of 6, intermediate 51 on 5 of 10 -> 60 on 4 of 10), and on the real
-    sample_seq1 (7.3 % of its object points unlabelled) the frame-8 update read the moved clamp as
-    static. docs/benchmark/strict-iou.md, fourth pass. Session 8: 0.003 with the fill
-    (``contact_fill_low`` 0.004, ``contact_fill_high`` 0.012) gains more (tuning mean AP 51.7 ->
-    53.8, AP50 93.6 -> 97.8) but has the same two costs; still off (strict-iou.md, session 8)."""
+    contact_height: float = 0.002
+    """Ours (issue 13 part 2), metres; 0 = off (the paper preset). After the vote and the rim
+    attach, an object point less than this above its object's support level (the table or tray
+    floor measured around it, ``support_levels``) is left unlabelled (``contact_labels``): depth
+    noise mixes an object's lowest millimetres with the support, and the super-voxels and rim
+    voxels that straddle the contact hand support to the object. Only where the fusion ran the
+    surface estimate (noisy depth; on clean depth the thin cloud's lowest points are the object's:
+    easy_0000 lost an object at IoU 0.5) and only for objects whose support noise is at most
+    ``contact_max_noise``. Consumers that need the object's whole extent (the update's geometry,
+    the grasp planner's target) read the labels before the rule (``run_labels_before_contact``),
+    so grasps and updates are those of the rule off. Session 8, RealSense-like depth, one process
+    A/B, mean of 6 scenes (AP25 / AP50 unchanged, no scene lower): AP 51.7 -> 53.7 (tuning seeds
+    2-3), 53.6 -> 55.1 (held-out seeds 0-1); 3 mm 53.1 on tuning. Measured from the global plane
+    (session 4) the same 2 mm gave 53.2 / 54.8 (hard_0003's tray floor stands 7-8 mm above it).
+    docs/benchmark/strict-iou.md, fourth pass and session 8."""
 
     contact_fill_low: float = 0.0
     """Ours (issue 13 part 2, session 8), metres above the object's own support level; used with
@@ -95,7 +91,11 @@ class RefineConfig:
     (every voxel within ``supervoxels.plane_distance`` = 10 mm of the plane that faces up). 4 mm:
     above the table's noise at the contact (nearest-GT labels of the unlabelled points near an
     object, tuning seeds 2-3: 66-85 % table at 2-4 mm, 17-47 % at 4-6 mm, 0-1 % at 6-10 mm);
-    3 mm lost easy_0002 (56.3 -> 54.0). docs/benchmark/strict-iou.md, session 8."""
+    3 mm lost easy_0002 (56.3 -> 54.0). OFF by default: with contact_height 0.003 it gains more on
+    generated scenes (AP 51.7 -> 53.8 tuning, 53.6 -> 55.3 held-out, AP50 93.6 -> 97.8 and 94.9 ->
+    97.6), but on the real sample_seq4 its 748 filled points fell inside their new instance's masks
+    11 % of the time, against 35 % for that instance's own points at the same heights (3-12 mm):
+    real depth noise at a tray floor, not object walls. docs/benchmark/strict-iou.md, session 8."""
     contact_fill_high: float = 0.0
     """Ours, metres above the object's support level: the fill's upper bound (``contact_fill_low``;
     not above ``contact_fill_low`` = the fill is off).

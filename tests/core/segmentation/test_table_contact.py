@@ -41,8 +41,10 @@ def test_config_checks_the_height_and_presets():
         RefineConfig(contact_height=-0.001)
     with pytest.raises(SceneError, match="contact_height"):
         RefineConfig(contact_height=0.2)  # metres, not millimetres
-    # off by default (it costs grasps and a real update, RefineConfig says why) and in the paper preset
-    assert PRESETS["default"].refine.contact_height == 0.0 and PRESETS["paper"].refine.contact_height == 0.0
+    # on by default since session 8 (its grasp and update costs removed: run_labels_before_contact), an
+    # addition the paper preset switches off; the fill stays off
+    assert PRESETS["default"].refine.contact_height == 0.002 and PRESETS["paper"].refine.contact_height == 0.0
+    assert PRESETS["default"].refine.contact_fill_high == 0.0
 
 
 @settings(max_examples=30, deadline=None)
@@ -71,7 +73,7 @@ def test_pipeline_unlabels_only_the_contact():
     scene = generate_scene(SynthConfig(seed=0, preset="easy", views=3, width=320, height=240, n_objects=3,
                                        depth_noise="realsense"), progress=False)
     on = segment(scene, with_fields(SegmentConfig(), {"refine.contact_height": 0.002}))
-    off = segment(scene)
+    off = segment(scene, with_fields(SegmentConfig(), {"refine.contact_height": 0.0}))
     assert np.array_equal(on.points, off.points) and np.array_equal(on.scores, off.scores)
     changed = on.instance != off.instance
     assert changed.any()  # this scene's objects rest on the table: some contact points were labelled (measured)
@@ -199,7 +201,7 @@ def test_update_state_and_grasp_target_read_the_labels_before_the_contact_rule()
                                        depth_noise="realsense"), progress=False)
     on = segment(scene, with_fields(SegmentConfig(), {"refine.contact_height": 0.003, "refine.contact_fill_low": 0.004,
                                                       "refine.contact_fill_high": 0.012}))
-    off = segment(scene)
+    off = segment(scene, with_fields(SegmentConfig(), {"refine.contact_height": 0.0}))
     assert not np.array_equal(on.instance, off.instance)
     s_on, s_off = state_from_segmentation(on), state_from_segmentation(off)
     assert np.array_equal(s_on.instance, s_off.instance) and np.array_equal(s_on.points, s_off.points)
