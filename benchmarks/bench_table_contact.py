@@ -1,7 +1,8 @@
 """Strict-IoU AP with and without the table-contact rule (``refine.contact_height``, issue 13 part 2).
 
 For each generated scene (RealSense-like depth by default), ``segment`` runs with the rule off
-and with the default, one after the other in one process; prints AP25 / AP50 / AP, instances,
+and with 2 mm (the default since session 8: measured above each object's own support level,
+``refine.contact_labels``), one after the other in one process; prints AP25 / AP50 / AP, instances,
 the labelling ceiling and the ``error_breakdown`` per scene as JSON lines, then the means:
 
     .venv/bin/python benchmarks/bench_table_contact.py --seeds 2 3     # tuning

@@ -275,6 +275,10 @@ def weak_echoes(points: np.ndarray, normals: np.ndarray, counts: np.ndarray, vox
 def table_contact(points: np.ndarray, instance: np.ndarray, plane: np.ndarray | None, height: float) -> np.ndarray:
     """(N,) bool: object-labelled points less than ``height`` metres above the support plane.
 
+    The fourth pass's rule, measured from the global plane; the pipeline now runs
+    ``contact_labels`` (heights above each object's own support level), which equals this where
+    every level is 0 and no object is left alone for its noise.
+
     points: (N, 3) metres; instance: (N,) int, -1 = none; plane: (4,) [nx, ny, nz, d] with unit n
     pointing towards the cameras (``SuperVoxels.plane``), or None (nothing is marked); height:
     metres, 0 = none. Points below the plane count too (objects rest on it, so anything under it
