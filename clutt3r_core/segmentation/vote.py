@@ -11,6 +11,9 @@ Support super-voxels (table, tray) are never labelled.
 Confidence (Sec. III-B.4, "confidence with the group size"): number of masks in the
 group divided by the number of views, plus 1e-3 x the group's mean internal
 S_spatial to order groups of equal size deterministically.
+
+``smooth_small_supervoxels`` (ours, off by default: ``VoteConfig.smooth_max_size``) relabels the
+smallest super-voxels after the vote by their neighbourhood (docs/benchmark/strict-iou.md, session 8).
 """
 
 from __future__ import annotations
