@@ -29,7 +29,7 @@ from clutt3r_core.errors import SceneError
 from clutt3r_core.segmentation.grouping import GroupingResult, MergeStep
 from clutt3r_core.segmentation.vote import VoteResult, renumber_by_score
 
-__all__ = ["RefineConfig", "won_fractions", "absorb_fragments", "ABSORB_STAGE", "weak_echoes", "table_contact",
+__all__ = ["RefineConfig", "won_fractions", "absorb_fragments", "ABSORB_STAGE", "weak_echoes",
            "ContactLabels", "support_levels", "contact_labels", "contact_on", "labels_before_contact",
            "run_labels_before_contact"]
 
@@ -272,29 +272,6 @@ def weak_echoes(points: np.ndarray, normals: np.ndarray, counts: np.ndarray, vox
     return np.asarray(counts, np.float64) < ratio * best
 
 
-def table_contact(points: np.ndarray, instance: np.ndarray, plane: np.ndarray | None, height: float) -> np.ndarray:
-    """(N,) bool: object-labelled points less than ``height`` metres above the support plane.
-
-    The fourth pass's rule, measured from the global plane; the pipeline now runs
-    ``contact_labels`` (heights above each object's own support level), which equals this where
-    every level is 0 and no object is left alone for its noise.
-
-    points: (N, 3) metres; instance: (N,) int, -1 = none; plane: (4,) [nx, ny, nz, d] with unit n
-    pointing towards the cameras (``SuperVoxels.plane``), or None (nothing is marked); height:
-    metres, 0 = none. Points below the plane count too (objects rest on it, so anything under it
-    that an object holds is noise). Why: at the contact the noisy surface of the table and the
-    object's bottom rim share voxels and super-voxels, and the 10 mm evaluation cells there are
-    mostly table; the breakdown's ``boundary`` cells on easy / intermediate scenes are mostly
-    table cells labelled object (issue 13 part 2, fourth pass).
-    """
-    inst = np.asarray(instance).reshape(-1)
-    if plane is None or height <= 0 or len(inst) == 0:
-        return np.zeros(len(inst), bool)
-    pl = np.asarray(plane, np.float64).reshape(4)
-    h = np.asarray(points, np.float64) @ pl[:3] + pl[3]
-    return (inst >= 0) & (h < height)
-
-
 @dataclass(frozen=True, eq=False)
 class ContactLabels:
     """What ``contact_labels`` did.
@@ -388,7 +365,8 @@ def contact_labels(points: np.ndarray, normals: np.ndarray, instance: np.ndarray
        rule made ground);
     2. contact (``cfg.contact_height`` > 0): an object point (after the fill) less than
        ``contact_height`` above its object's level is left unlabelled (depth noise mixes the
-       object's lowest millimetres with the support).
+       object's lowest millimetres with the support; points below the level count too: the
+       object rests on it, so what it holds under it is noise).
     Neither touches an object whose support noise exceeds ``cfg.contact_max_noise``.
     Only labels change; no point moves.
     """

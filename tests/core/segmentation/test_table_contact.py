@@ -1,4 +1,4 @@
-"""Object points at the table contact left unlabelled (segmentation/refine.py ``table_contact``)."""
+"""Object points at the table contact left unlabelled (segmentation/refine.py ``contact_labels``)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from clutt3r_core.errors import SceneError
-from clutt3r_core.segmentation.refine import RefineConfig, contact_labels, support_levels, table_contact
+from clutt3r_core.segmentation.refine import RefineConfig, contact_labels, support_levels
 
 # a tilted plane, unit normal towards the cameras: n . x + d = 0
 N = np.array([0.0, 0.6, 0.8])
@@ -23,15 +23,28 @@ def at_heights(h: np.ndarray, seed: int = 0) -> np.ndarray:
     return base + np.asarray(h)[:, None] * N
 
 
+def sideways(m: int) -> np.ndarray:
+    """(m, 3) unit normals along the plane (no point faces up, so no support level is measured and
+    every object's level is the plane itself: heights above it decide)."""
+    return np.tile([1.0, 0.0, 0.0], (m, 1))
+
+
+def cleared(p: np.ndarray, inst: np.ndarray, plane, height: float) -> np.ndarray:
+    """``contact_labels``' cleared points of 3 objects on ``plane`` with normals along it."""
+    r = contact_labels(p, sideways(len(p)), inst, 3, plane, RefineConfig(contact_height=height))
+    assert not r.level.any() and np.array_equal(r.instance, np.where(r.cleared, -1, inst))
+    return r.cleared
+
+
 def test_only_labelled_points_below_the_height_are_marked():
     h = np.array([-0.004, 0.0, 0.0015, 0.0025, 0.01, 0.0005, 0.05])
     inst = np.array([0, 1, 2, 0, 1, -1, 2])
-    m = table_contact(at_heights(h), inst, PLANE, 0.002)
+    m = cleared(at_heights(h), inst, PLANE, 0.002)
     assert m.tolist() == [True, True, True, False, False, False, False]  # the unlabelled 0.5 mm point stays as it is
     # off, or no plane: nothing
-    assert not table_contact(at_heights(h), inst, PLANE, 0.0).any()
-    assert not table_contact(at_heights(h), inst, None, 0.002).any()
-    assert table_contact(np.zeros((0, 3)), np.zeros(0, int), PLANE, 0.002).shape == (0,)
+    assert not cleared(at_heights(h), inst, PLANE, 0.0).any()
+    assert not cleared(at_heights(h), inst, None, 0.002).any()
+    assert cleared(np.zeros((0, 3)), np.zeros(0, int), PLANE, 0.002).shape == (0,)
 
 
 def test_config_checks_the_height_and_presets():
@@ -54,7 +67,7 @@ def test_marked_points_grow_with_the_height_and_are_labelled(hs, a, b, seed):
     h = np.array(hs)
     inst = np.random.default_rng(seed).integers(-1, 3, len(h))
     p = at_heights(h, seed)
-    lo, hi = table_contact(p, inst, PLANE, min(a, b)), table_contact(p, inst, PLANE, max(a, b))
+    lo, hi = cleared(p, inst, PLANE, min(a, b)), cleared(p, inst, PLANE, max(a, b))
     assert not (lo & ~hi).any()  # monotone in the height
     assert (inst[hi] >= 0).all()  # never touches what is already unlabelled
     # every marked point lies below the height (1e-9: the points' own rounding)
