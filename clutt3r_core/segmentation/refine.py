@@ -443,7 +443,9 @@ def run_labels_before_contact(seg) -> np.ndarray:
     inst = np.asarray(seg.instance)
     if refine is None or not contact_on(refine) or surface is None or surface.method != "tsdf":
         return inst
-    n = len(inst) - (surface.rim or 0)
+    from clutt3r_core.update.run_labels import fused_count
+
+    n = fused_count(seg)  # the segmented cloud; its rim voxels follow
     base = labels_before_contact(seg.trace.vote.sv_label, seg.sv_labels[:n], seg.points[:n], seg.normals[:n],
                                  seg.counts[:n], cfg.pointcloud.voxel_size, refine)
     if n == len(inst):

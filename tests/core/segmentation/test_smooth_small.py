@@ -107,6 +107,7 @@ def test_pipeline_smoothing_changes_only_small_supervoxels_and_never_the_groupin
     from clutt3r_core.config import SegmentConfig, with_fields
     from clutt3r_core.pipeline import instance_tree_json, segment
     from clutt3r_core.synth import SynthConfig, generate_scene
+    from clutt3r_core.update.run_labels import fused_count
 
     scene = generate_scene(SynthConfig(seed=1, preset="easy", views=3, width=320, height=240, n_objects=3,
                                        mask_noise="grounded-sam-like", depth_noise="realsense"), progress=False)
@@ -114,7 +115,7 @@ def test_pipeline_smoothing_changes_only_small_supervoxels_and_never_the_groupin
     on = segment(scene, with_fields(SegmentConfig(), {"vote.smooth_max_size": 3, "vote.smooth_min_agree": 5}))
     assert instance_tree_json(off) == instance_tree_json(on)
     assert np.array_equal(off.trace.vote.sv_label, on.trace.vote.sv_label)
-    n = len(off.points) - (off.trace.surface.rim or 0 if off.trace.surface is not None else 0)
+    n = fused_count(off)
     changed = np.flatnonzero(off.instance[:n] != on.instance[:n])
     assert len(changed)  # 10 of 45 k voxels on this scene: the rule runs in the pipeline
     sizes = np.bincount(off.sv_labels[:n])
