@@ -37,10 +37,10 @@ from clutt3r_core.segmentation.grouping import (
     spatial_similarity,
 )
 from clutt3r_core.segmentation.instance_surface import smooth_instances
-from clutt3r_core.segmentation.refine import absorb_fragments, contact_labels, weak_echoes
+from clutt3r_core.segmentation.refine import absorb_fragments, contact_labels, labels_before_contact
 from clutt3r_core.segmentation.trace import StageClock, StageTiming, Trace
 from clutt3r_core.segmentation.trees import InstanceTree, build_tree_overlaps
-from clutt3r_core.segmentation.vote import smooth_small_supervoxels, supervoxel_vote
+from clutt3r_core.segmentation.vote import supervoxel_vote
 from clutt3r_core.supervoxels import build_supervoxels
 
 __all__ = [
@@ -276,13 +276,11 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
         vote = revote(grouping.groups)
         # ours (issue 13): fragment groups join the instance that won their masks' footprint
         grouping, vote = absorb_fragments(grouping, vote, occupancy, sv.counts, s_spat, s_sem, revote, config.refine)
-        instance = vote.sv_label[sv.labels]
-        # ours (session 8): small super-voxels take their neighbourhood's instance (vote.py)
-        instance = smooth_small_supervoxels(cloud.points, instance, sv.labels, sv.support, config.vote)
-        # ours (issue 13), off by default: depth noise spilling off a surface left unlabelled
-        echo = weak_echoes(cloud.points, cloud.normals, cloud.counts, config.pointcloud.voxel_size,
-                           config.refine.weak_echo_ratio)
-        instance = np.where(echo, -1, instance)
+        # the vote's labels per voxel; ours, off by default: small super-voxels smoothed (session 8),
+        # weak echoes unlabelled (issue 13). One function, so that the labels the contact rule
+        # changes can be recomputed from a run (``refine.run_labels_before_contact``)
+        instance = labels_before_contact(vote.sv_label, sv.labels, sv.support, cloud.points, cloud.normals,
+                                         cloud.counts, config.pointcloud.voxel_size, config.vote, config.refine)
     points, colors, normals, counts, sv_labels = cloud.points, cloud.colors, cloud.normals, cloud.counts, sv.labels
     if cloud.rim is not None:
         # ours (issue 13): the rim voxels the fusion kept apart take their segmented neighbours'

@@ -27,7 +27,7 @@ import numpy as np
 
 from clutt3r_core.errors import SceneError
 from clutt3r_core.segmentation.grouping import GroupingResult, MergeStep
-from clutt3r_core.segmentation.vote import VoteResult, renumber_by_score
+from clutt3r_core.segmentation.vote import VoteConfig, VoteResult, renumber_by_score, smooth_small_supervoxels
 
 __all__ = ["RefineConfig", "won_fractions", "absorb_fragments", "ABSORB_STAGE", "weak_echoes",
            "ContactLabels", "support_levels", "contact_labels", "contact_on", "labels_before_contact",
@@ -409,18 +409,23 @@ def contact_on(cfg: RefineConfig) -> bool:
     return cfg.contact_height > 0 or cfg.contact_fill_high > cfg.contact_fill_low
 
 
-def labels_before_contact(sv_label: np.ndarray, sv_labels: np.ndarray, points: np.ndarray, normals: np.ndarray,
-                          counts: np.ndarray, voxel: float, cfg: RefineConfig) -> np.ndarray:
-    """(n,) int64: the segmented cloud's labels as the vote left them, before ``contact_labels``.
+def labels_before_contact(sv_label: np.ndarray, sv_labels: np.ndarray, sv_support: np.ndarray, points: np.ndarray,
+                          normals: np.ndarray, counts: np.ndarray, voxel: float, vote_cfg: VoteConfig,
+                          cfg: RefineConfig) -> np.ndarray:
+    """(n,) int32: the segmented cloud's labels as the vote leaves them, before the rim attach and
+    ``contact_labels``: the vote's instance per super-voxel, small super-voxels relabelled by their
+    neighbourhood (``vote.smooth_small_supervoxels``, ``vote_cfg``) and weak echoes unlabelled
+    (``weak_echoes``, ``cfg``).
 
     sv_label: (K,) the vote's instance per super-voxel (``VoteResult.sv_label``); sv_labels: (n,)
     super-voxel per point of the segmented cloud (a run's first n points, rim voxels excluded);
-    points, normals, counts: those points' (n, 3) metres, (n, 3) unit, (n,) raw points; voxel: the
-    fusion's voxel edge, metres; cfg: the run's refine config (its weak echoes are applied again:
-    they are a pure function of the stored cloud). The pipeline computes exactly this before the
-    rim attach and the contact, so a run's labels without the contact rule need no extra storage.
+    sv_support: (K,) bool support super-voxels; points, normals, counts: those points' (n, 3)
+    metres, (n, 3) unit, (n,) raw points; voxel: the fusion's voxel edge, metres. The pipeline
+    labels its cloud with this function, and every step is a pure function of what a run stores,
+    so ``run_labels_before_contact`` recomputes exactly these labels with no extra storage.
     """
-    inst = np.asarray(sv_label, np.int64)[np.asarray(sv_labels, np.int64)]
+    inst = np.asarray(sv_label)[np.asarray(sv_labels)]
+    inst = smooth_small_supervoxels(points, inst, sv_labels, sv_support, vote_cfg)
     echo = weak_echoes(points, normals, counts, voxel, cfg.weak_echo_ratio)
     return np.where(echo, -1, inst)
 
@@ -438,16 +443,16 @@ def run_labels_before_contact(seg) -> np.ndarray:
     two low objects of generated easy seed 0 lost their only successful grasps).
     """
     cfg = seg.trace.config
-    refine = getattr(cfg, "refine", None)
+    refine = cfg.refine
     surface = seg.trace.surface
     inst = np.asarray(seg.instance)
-    if refine is None or not contact_on(refine) or surface is None or surface.method != "tsdf":
+    if not contact_on(refine) or surface is None or surface.method != "tsdf":
         return inst
     from clutt3r_core.update.run_labels import fused_count
 
     n = fused_count(seg)  # the segmented cloud; its rim voxels follow
-    base = labels_before_contact(seg.trace.vote.sv_label, seg.sv_labels[:n], seg.points[:n], seg.normals[:n],
-                                 seg.counts[:n], cfg.pointcloud.voxel_size, refine)
+    base = labels_before_contact(seg.trace.vote.sv_label, seg.sv_labels[:n], seg.sv_support, seg.points[:n],
+                                 seg.normals[:n], seg.counts[:n], cfg.pointcloud.voxel_size, cfg.vote, refine)
     if n == len(inst):
         return base.astype(inst.dtype)
     from clutt3r_core.rim import attach_labels

@@ -122,3 +122,20 @@ def test_pipeline_smoothing_changes_only_small_supervoxels_and_never_the_groupin
     assert (sizes[off.sv_labels[changed]] <= 3).all()
     assert not off.sv_support[off.sv_labels[changed]].any()
     assert (on.instance[changed] >= 0).all()
+
+
+def test_labels_before_the_contact_rule_include_the_smoothing():
+    """With the smoothing and the contact rule both on, the labels the update and the grasp target
+    read (``refine.run_labels_before_contact``) are the run's with the contact rule off: smoothed."""
+    from clutt3r_core.config import SegmentConfig, with_fields
+    from clutt3r_core.pipeline import segment
+    from clutt3r_core.segmentation.refine import run_labels_before_contact
+    from clutt3r_core.synth import SynthConfig, generate_scene
+
+    scene = generate_scene(SynthConfig(seed=1, preset="easy", views=3, width=320, height=240, n_objects=3,
+                                       mask_noise="grounded-sam-like", depth_noise="realsense"), progress=False)
+    smooth = {"vote.smooth_max_size": 3, "vote.smooth_min_agree": 5}
+    on = segment(scene, with_fields(SegmentConfig(), smooth))
+    no_contact = segment(scene, with_fields(SegmentConfig(), {**smooth, "refine.contact_height": 0.0}))
+    assert not np.array_equal(on.instance, no_contact.instance)  # the contact rule ran
+    assert np.array_equal(run_labels_before_contact(on), no_contact.instance)
