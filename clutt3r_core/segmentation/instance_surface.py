@@ -103,8 +103,8 @@ class SmoothedPoints:
             raise SceneError("SmoothedPoints: points (N, 3), moved (N,) and shift (N,) must agree")
 
 
-def _project(q: np.ndarray, nb: np.ndarray, w: np.ndarray, quadric: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """Projections of q (M, 3) onto the weighted quadric (or plane) of its neighbours nb (M, K, 3),
+def _project(q: np.ndarray, nb: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Projections of q (M, 3) onto the weighted quadric of its neighbours nb (M, K, 3),
     weights w (M, K) (0 = not a neighbour). Returns the projections (M, 3) and the fit's unit normals there
     (M, 3); NaN where the fit is degenerate."""
     ws = w.sum(1, keepdims=True)
@@ -119,8 +119,8 @@ def _project(q: np.ndarray, nb: np.ndarray, w: np.ndarray, quadric: bool = True)
     qu, qv, qh = (np.einsum("mi,mi->m", qx, vec[:, :, j]) for j in (2, 1, 0))
     # height field h = a + b u + c v + d u^2 + e uv + f v^2, centred on the query point's (u, v)
     du, dv = u - qu[:, None], v - qv[:, None]
-    terms = [np.ones_like(du), du, dv] + ([du * du, du * dv, dv * dv] if quadric else [])
-    A = np.stack(terms, axis=-1)  # (M, K, 6 or 3)
+    terms = [np.ones_like(du), du, dv, du * du, du * dv, dv * dv]
+    A = np.stack(terms, axis=-1)  # (M, K, 6)
     Aw = A * w[..., None]
     N = np.einsum("mki,mkj->mij", Aw, A) + 1e-12 * np.eye(len(terms))
     rhs = np.einsum("mki,mk->mi", Aw, h)
