@@ -10,8 +10,9 @@ the labelling ceiling and the ``error_breakdown`` per scene as JSON lines, then 
 
 ``--boundary`` also splits the breakdown's boundary cells into object cells left unlabelled,
 object cells labelled with another object, and GT-background (table) cells labelled as an object.
-``--variant NAME:FIELD=VALUE,FIELD=VALUE`` (repeatable) runs named config variants instead of
-``--heights``, e.g. the session-8 contact rule (support levels, fill and contact):
+``--variant NAME:FIELD=VALUE,FIELD=VALUE`` (repeatable; JSON values, ``bench_config_ab.parse_variant``)
+runs named config variants instead of ``--heights``, e.g. the session-8 contact rule (support
+levels, fill and contact):
 
     .venv/bin/python benchmarks/bench_table_contact.py --seeds 2 3 --variant off:refine.contact_height=0 \
         --variant fill:refine.contact_height=0.003,refine.contact_fill_low=0.004,refine.contact_fill_high=0.012
@@ -31,6 +32,8 @@ from clutt3r_core.evaluation.breakdown import ERROR_KINDS, _near_other_label, er
 from clutt3r_core.evaluation.metrics import EVAL_VOXEL, evaluate_instances, union_cells, voxelize_labels
 from clutt3r_core.evaluation.runner import _load_prepared, synth_suite
 from clutt3r_core.pipeline import segment
+
+from bench_config_ab import parse_variant  # this folder's sibling script
 
 
 def boundary_split(seg, gt) -> dict[str, int]:
@@ -63,10 +66,7 @@ def main() -> None:
     args = ap.parse_args()
     specs = [s for s in synth_suite(max(args.seeds) + 1, args.difficulties, depth_noise=args.depth_noise)
              if int(s.name[-4:]) in args.seeds]
-    variants: dict[str, dict] = {}
-    for v in args.variant:
-        name, _, fields = v.partition(":")
-        variants[name] = {f.split("=")[0]: float(f.split("=")[1]) for f in fields.split(",") if f}
+    variants = dict(parse_variant(v) for v in args.variant)
     if not variants:
         variants = {str(h): {"refine.contact_height": h} for h in args.heights}
     rows: dict[str, list[dict]] = {k: [] for k in variants}
