@@ -376,7 +376,7 @@ def contact_labels(points: np.ndarray, normals: np.ndarray, instance: np.ndarray
     n = len(inst)
     none = np.zeros(n, bool)
     fill_on = cfg.contact_fill_high > cfg.contact_fill_low
-    if plane is None or n == 0 or num_instances == 0 or (cfg.contact_height <= 0 and not fill_on):
+    if plane is None or n == 0 or num_instances == 0 or not contact_on(cfg):
         return ContactLabels(inst, np.zeros(num_instances), np.full(num_instances, np.nan), none, none.copy())
     pl = np.asarray(plane, np.float64).reshape(4)
     p = np.asarray(points, np.float64)
