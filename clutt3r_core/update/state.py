@@ -207,7 +207,7 @@ def state_from_segmentation(seg, voxel_size: float = 0.005, run: Path | None = N
                           embedder=seg.trace.embedder, voxel_size=voxel_size, run=run)
     if len(labels.instance) != len(seg.points):
         raise SceneError(f"corrected labels have {len(labels.instance)} points, the run {len(seg.points)}")
-    inst = labels.instance[:n]
+    inst = _corrected_geometry_labels(seg, labels.instance, n)
     ids = np.unique(inst[inst >= 0]).astype(np.int32)  # rim-only instances have no point here
     cemb = (run_share(labels.instance, seg, labels.num_ids)[ids] @ emb).astype(np.float32)
     norm = np.linalg.norm(cemb, axis=1, keepdims=True)
@@ -226,6 +226,29 @@ def _geometry_labels(seg, n: int) -> np.ndarray:
     from clutt3r_core.segmentation.refine import run_labels_before_contact
 
     return run_labels_before_contact(seg)[:n]
+
+
+def _corrected_geometry_labels(seg, corrected: np.ndarray, n: int) -> np.ndarray:
+    """(n,) int32: the corrected labels of the run's first n points, with the points the contact rule
+    cleared (labelled before it, unlabelled in the run and left unlabelled by the corrections) given
+    the corrected id of the nearest point of their own pre-contact instance that has one. A merge
+    carries them to the merged id, a split to the nearer part; a deleted instance keeps them
+    unlabelled (none of its points has an id). Without this a correction brought the contact's
+    labels back into the update's geometry (``_geometry_labels``: the moved clamp read static)."""
+    out = np.array(corrected[:n], np.int32)
+    pre = np.asarray(_geometry_labels(seg, n))
+    cleared = (pre >= 0) & (np.asarray(seg.instance[:n]) < 0) & (out < 0)
+    if not cleared.any():
+        return out
+    from scipy.spatial import cKDTree
+
+    pts = np.asarray(seg.points[:n])
+    for k in np.unique(pre[cleared]):
+        src = np.flatnonzero((pre == k) & (out >= 0))
+        if len(src):
+            dst = np.flatnonzero(cleared & (pre == k))
+            out[dst] = out[src[cKDTree(pts[src]).query(pts[dst])[1]]]
+    return out
 
 
 def state_from_run(run_dir: str | Path) -> SceneState:

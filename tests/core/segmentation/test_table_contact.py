@@ -230,6 +230,33 @@ def test_update_state_and_grasp_target_read_the_labels_before_the_contact_rule()
         assert np.array_equal(request_from_segmentation(on, k).target, request_from_segmentation(off, k).target)
 
 
+def test_a_corrected_update_state_keeps_the_contact_with_the_corrected_ids():
+    from clutt3r_core.config import SegmentConfig, with_fields
+    from clutt3r_core.pipeline import segment
+    from clutt3r_core.synth.generator import SynthConfig, generate_scene
+    from clutt3r_core.update.run_labels import LabelSource, RunLabels, labels_sha256
+    from clutt3r_core.update.state import state_from_segmentation
+
+    # a correction must not bring the contact's cleared points back into the update's geometry:
+    # they follow their own instance's corrected id (merged: the merged id; deleted: none)
+    scene = generate_scene(SynthConfig(seed=0, preset="easy", views=3, width=320, height=240, n_objects=3,
+                                       depth_noise="realsense"), progress=False)
+    on = segment(scene, with_fields(SegmentConfig(), {"refine.contact_height": 0.003}))
+    off = segment(scene, with_fields(SegmentConfig(), {"refine.contact_height": 0.0}))
+    assert on.num_instances >= 3 and not np.array_equal(on.instance, off.instance)
+    n = len(state_from_segmentation(off).instance)
+
+    def corrected(edit):
+        inst = edit(np.asarray(on.instance)).astype(np.int32)
+        ids = np.unique(inst[inst >= 0]).astype(np.int32)
+        return RunLabels(inst, ids, on.num_instances, LabelSource(1, 1, labels_sha256(inst)))
+
+    merge = state_from_segmentation(on, labels=corrected(lambda a: np.where(a == 1, 0, a)))
+    assert np.array_equal(merge.instance, np.where(off.instance == 1, 0, off.instance)[:n])
+    delete = state_from_segmentation(on, labels=corrected(lambda a: np.where(a == 2, -1, a)))
+    assert np.array_equal(delete.instance, np.where(off.instance == 2, -1, off.instance)[:n])
+
+
 def test_contact_labels_leave_an_object_on_a_noisy_support_alone():
     # the floor around the box as noisy as the real sample_seq1's (7-27 mm measured): nothing changes
     p, n, inst, _ = _box_on_floor(0.0, noise=0.008)
