@@ -322,7 +322,7 @@ def support_levels(points: np.ndarray, normals: np.ndarray, instance: np.ndarray
     tray floor 7-8 mm above the table plane (measured, tuning seeds 2-3), so heights above the
     global plane mislabel there (the earlier fill lost hard_0003 54.0 -> 46.8 that way).
     """
-    from scipy.spatial import cKDTree
+    from clutt3r_core.normals import knn_query, knn_tree  # pykdtree: scipy.spatial's import cost 0.4 s
 
     level = np.zeros(num_instances)
     noise = np.full(num_instances, np.nan)
@@ -340,8 +340,9 @@ def support_levels(points: np.ndarray, normals: np.ndarray, instance: np.ndarray
     if not len(cand) or not len(obj):
         return level, noise
     # each support point measures the object nearest to it in the plane (one k-d query for all)
-    d, j = cKDTree(uv[obj]).query(uv[cand], k=1, distance_upper_bound=SUPPORT_RING[1])
-    ring = np.isfinite(d) & (d > SUPPORT_RING[0])
+    d2, j = knn_query(knn_tree(uv[obj]), uv[cand], 1)
+    d, j = np.sqrt(d2[:, 0]), j[:, 0]
+    ring = (d < SUPPORT_RING[1]) & (d > SUPPORT_RING[0])
     k_of, hh = inst[obj[j[ring]]], h[cand[ring]]
     for k in np.unique(k_of):
         v = hh[k_of == k]
@@ -370,8 +371,6 @@ def contact_labels(points: np.ndarray, normals: np.ndarray, instance: np.ndarray
     Neither touches an object whose support noise exceeds ``cfg.contact_max_noise``.
     Only labels change; no point moves.
     """
-    from scipy.spatial import cKDTree
-
     inst = np.asarray(instance, np.int64).reshape(-1).copy()
     n = len(inst)
     none = np.zeros(n, bool)
@@ -389,6 +388,8 @@ def contact_labels(points: np.ndarray, normals: np.ndarray, instance: np.ndarray
         # only unlabelled points at a height some object's fill band can reach (a tenth of them)
         un = np.flatnonzero((inst < 0) & (h >= level.min() + cfg.contact_fill_low) & (h < level.max() + cfg.contact_fill_high))
         if len(obj) and len(un):
+            from scipy.spatial import cKDTree  # only with the fill (off by default)
+
             d, j = cKDTree(p[obj]).query(p[un], k=1, distance_upper_bound=cfg.contact_fill_distance)
             hit = np.isfinite(d)
             un, lab = un[hit], inst[obj[j[hit]]]
