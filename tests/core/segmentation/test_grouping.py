@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from clutt3r_core.segmentation.grouping import (
     GroupingConfig,
@@ -225,3 +227,34 @@ def test_empty_input():
     sim = SimilarityGraph(np.zeros((0, 0), np.float32), np.zeros((0, 0), np.float32))
     res = run_grouping(nodes, sim, 0, GroupingConfig())
     assert res.groups == () and res.merges == ()
+
+
+def test_semantic_min_spatial_keeps_look_alikes_apart_that_share_a_sliver():
+    # two same-coloured objects whose masks share only a sliver of one super-voxel (a stray mask
+    # edge): mean S_spatial 0.005, above 0, so the overlap gate alone lets stage 2 join them
+    x = occ(*X)
+    x[4] = 0.05
+    spec = [(0, 1, None, x), (1, 1, None, x), (2, 1, None, occ(*Y)), (3, 1, None, occ(*Y))]
+    emb = np.tile(np.array([[1.0, 0.0]], np.float32), (4, 1))
+    nodes, sim, O, idx, V = build(spec, emb=emb)
+    plain = run_grouping(nodes, sim, V, GroupingConfig())
+    assert len(plain.groups) == 1 and 0 < plain.merges[-1].spatial < 0.01
+    gated = run_grouping(nodes, sim, V, GroupingConfig(semantic_min_spatial=0.01))
+    assert len(gated.groups) == 2 and all(m.stage == "spatial" for m in gated.merges)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.sampled_from([0.0, 0.01, 0.05, 0.2]))
+def test_every_semantic_merge_meets_semantic_min_spatial(seed, t):
+    # random sparse occupancies and embeddings over 4 views: no stage-2 merge below the gate
+    rng = np.random.default_rng(seed)
+    spec = []
+    for f in range(4):
+        for m in range(1, 4):
+            row = (rng.random(K) < 0.3) * rng.random(K)
+            spec.append((f, m, None, row.astype(np.float32)))
+    emb = rng.normal(size=(len(spec), 3)).astype(np.float32)
+    emb[:, 0] += 3.0  # look-alikes: most semantic similarities above tau_sem
+    nodes, sim, O, idx, V = build(spec, emb=emb)
+    res = run_grouping(nodes, sim, V, GroupingConfig(semantic_min_spatial=t))
+    assert all(m.spatial > 0 and m.spatial >= t - 1e-6 for m in res.merges if m.stage == "semantic")
