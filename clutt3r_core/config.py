@@ -213,6 +213,7 @@ ADDED_AFTER_V1: dict[str, Any] = {
     "exclude_background_masks": True,
     "grouping.spatial_excludes_support": True,
     "grouping.substitute_stranded_parents": False,
+    "grouping.semantic_min_spatial": 0.0,
     "vote.revote_dropped": False,
     "vote.smooth_max_size": 0,
     "vote.smooth_k": 10,
