@@ -69,8 +69,9 @@ def test_the_tour_walks_the_whole_story(browser, tour_app, artifacts):  # noqa: 
             _wait(lambda: tour.applied > n, timeout=30, what=f"step {step.key}")
         st = sess.state
         assert tour.step == k and not tour.exploring
-        # the tab of the step is open (a click in the page: viser has no server call for it)
-        _wait(lambda: _tab_selected(page, step.tab), what=f"tab {step.tab} open at step {step.key}")
+        # the tab of the step is open (a click in the page: viser has no server call for it; 30 s like
+        # the step wait: a CI run with other jobs on the 2 cores timed out at 15 s on the grasps step)
+        _wait(lambda: _tab_selected(page, step.tab), timeout=30, what=f"tab {step.tab} open at step {step.key}")
         # the camera the step asked for reached the browser (it reports its camera back)
         view = 0 if step.key == "views" else tree_view(d)
         src = next((x for x in app.sources if x.name == POSE_SOURCE), None)
