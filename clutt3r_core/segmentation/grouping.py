@@ -100,7 +100,8 @@ class GroupingConfig:
     two of the eight objects with no prediction at IoU 0.5 were joined to a neighbour by a
     stage-2 merge whose mean S_spatial was above 0 but under 0.003 (a stray mask of the
     neighbour sharing a super-voxel or two; ``benchmarks/ap50_misses.py``), then absorbed into
-    the neighbour. Needs ``semantic_needs_overlap``."""
+    the neighbour. Needs ``semantic_needs_overlap``; a pair it blocks is recorded as the overlap
+    gate's (``BlockedPairs``, rule ``overlap_gate``)."""
     spatial_excludes_support: bool = True
     """Ours (findings point 4): S_spatial (eq. 2) is computed with the support super-voxels'
     occupancy set to 0 (table and tray carry no evidence of object identity; two masks that
