@@ -23,6 +23,7 @@ from clutt3r_core.segmentation.grouping import GroupingConfig
 from clutt3r_core.segmentation.instance_surface import InstanceSurfaceConfig
 from clutt3r_core.segmentation.refine import RefineConfig
 from clutt3r_core.segmentation.trees import TreeConfig
+from clutt3r_core.segmentation.unvoted import UnvotedConfig
 from clutt3r_core.segmentation.vote import VoteConfig
 from clutt3r_core.supervoxels import SuperVoxelConfig
 
@@ -56,6 +57,9 @@ class SegmentConfig:
     instance_surface: InstanceSurfaceConfig = field(default_factory=InstanceSurfaceConfig)
     """Each instance's points onto a local surface of its own points, after the labelling (ours,
     issue 13; off by default: ``segmentation.instance_surface``, docs/benchmark/strict-iou.md)."""
+    unvoted: UnvotedConfig = field(default_factory=UnvotedConfig)
+    """Unlabelled clusters above the support become low-confidence instances (ours, session 8; off
+    by default: ``segmentation.unvoted``, docs/benchmark/strict-iou.md)."""
     embedder: str = "appearance-hsv"
     """Backend of S_semantic (Sec. III-B.2 uses Duoduo CLIP; see clutt3r_core/embeddings.py)."""
     background_fraction: float = 0.5
@@ -234,13 +238,14 @@ ADDED_AFTER_V1: dict[str, Any] = {
     "pointcloud.surface_rim_neighbours": 0,
     "pointcloud.surface_rim_attach_k": 0,
     "pointcloud.surface_rim_attach_distance": 0.02,
+    "unvoted.min_points": 0,
 }
 """Fields added after trace version 1, each with the value that reproduces the code that wrote
 such a trace (issue 13: the first two only made existing rules switchable; the others are
 fixes or rules that the old code did not have). Only these may be missing from a stored config."""
 
 
-_STAGES_ADDED_AFTER_V1 = ("refine", "instance_surface")
+_STAGES_ADDED_AFTER_V1 = ("refine", "instance_surface", "unvoted")
 """Whole stage configs added after trace version 1 (issue 13: ``refine``); a config without one
 gets its defaults with the ``ADDED_AFTER_V1`` fields (any other missing stage is an error)."""
 

@@ -40,6 +40,7 @@ from clutt3r_core.segmentation.instance_surface import smooth_instances
 from clutt3r_core.segmentation.refine import absorb_fragments, contact_labels, labels_before_contact
 from clutt3r_core.segmentation.trace import StageClock, StageTiming, Trace
 from clutt3r_core.segmentation.trees import InstanceTree, build_tree_overlaps
+from clutt3r_core.segmentation.unvoted import unvoted_instances
 from clutt3r_core.segmentation.vote import supervoxel_vote
 from clutt3r_core.supervoxels import build_supervoxels
 
@@ -107,7 +108,12 @@ class Segmentation:
         return len(self.scores)
 
     def instance_nodes(self, k: int) -> tuple[int, ...]:
-        """Node indices (into trace.nodes) of the masks that make instance k."""
+        """Node indices (into trace.nodes) of the masks that make instance k; () for an instance
+        the unvoted-cluster fallback added (``segmentation.unvoted``: ids after the voted ones)."""
+        if not 0 <= k < self.num_instances:
+            raise IndexError(f"instance {k} out of range 0..{self.num_instances - 1}")
+        if k >= len(self.trace.vote.instance_group):
+            return ()
         return self.trace.grouping.groups[int(self.trace.vote.instance_group[k])]
 
 
@@ -281,6 +287,16 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
         # changes can be recomputed from a run (``refine.run_labels_before_contact``)
         instance = labels_before_contact(vote.sv_label, sv.labels, sv.support, cloud.points, cloud.normals,
                                          cloud.counts, config.pointcloud.voxel_size, config.vote, config.refine)
+    scores = vote.scores
+    if config.unvoted.min_points > 0:
+        # ours (session 8), off by default: unlabelled clusters standing above the support (no
+        # candidate mask covered them) become instances after, and below, every voted one
+        with timer("unvoted"):
+            bg_cover = (occupancy[background].max(axis=0) if background.any()
+                        else np.zeros(occupancy.shape[1], np.float32))
+            unv = unvoted_instances(cloud.points, cloud.counts, instance, sv.labels, sv.support, bg_cover, sv.plane,
+                                    vote.scores, config.unvoted)
+            instance, scores = unv.instance, unv.scores
     points, colors, normals, counts, sv_labels = cloud.points, cloud.colors, cloud.normals, cloud.counts, sv.labels
     if cloud.rim is not None:
         # ours (issue 13): the rim voxels the fusion kept apart take their segmented neighbours'
@@ -299,7 +315,7 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
         # contact is relabelled by height above each object's own support level: the lowest walls
         # the support rule took are the object's, its lowest millimetres the table's
         # (``refine.contact_labels``; on clean depth it cost AP50)
-        instance = contact_labels(points, normals, instance, len(vote.scores), sv.plane, config.refine).instance
+        instance = contact_labels(points, normals, instance, len(scores), sv.plane, config.refine).instance
     if config.instance_surface.enabled:
         # ours (issue 13), off by default: each instance's points onto a local surface fitted to its
         # own points only (never averaged across a contact); labels, counts and normals stay
@@ -331,7 +347,7 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
         normals=normals,
         counts=counts,
         instance=instance.astype(np.int32),
-        scores=vote.scores,
+        scores=scores,
         sv_labels=sv_labels,
         sv_support=sv.support,
         trace=trace,
