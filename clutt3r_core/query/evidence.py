@@ -207,6 +207,9 @@ def aggregate_instances(seg, ev: NodeEvidence, label_mode: bool, area_power: flo
     n_views = np.zeros(k, np.int32)
     grounding = np.maximum(ev.grounding, LOGP_FLOOR) if label_mode else ev.grounding
     for i, grp in enumerate(groups):
+        if not grp:  # an unvoted-fallback instance (segmentation.unvoted) has no masks: no evidence
+            out_g[i] = LOGP_FLOOR if label_mode else 0.0
+            continue
         js = [row[n] for n in grp if n in row]
         if not js:
             raise SceneError(f"instance {i}: none of its masks has evidence (stale cache?)")

@@ -190,7 +190,9 @@ def state_from_segmentation(seg, voxel_size: float = 0.005, run: Path | None = N
         e = seg.trace.embeddings
         emb = np.zeros((k, e.shape[1]), np.float32)
         for i in range(k):
-            emb[i] = e[list(seg.instance_nodes(i))].mean(axis=0)
+            nodes = list(seg.instance_nodes(i))
+            if nodes:  # an unvoted-fallback instance has no masks: a zero embedding (matches none)
+                emb[i] = e[nodes].mean(axis=0)
     norm = np.linalg.norm(emb, axis=1, keepdims=True)
     emb = np.divide(emb, norm, out=np.zeros_like(emb), where=norm > 0)
     # The fusion's rim voxels (the run's last ``trace.surface.rim`` points, ``clutt3r_core.rim``)

@@ -124,8 +124,12 @@ def fallback_run(tmp_path_factory):
     seg = segment(scene, with_fields(SegmentConfig(), {"unvoted.min_points": 20}))
     voted = len(seg.trace.vote.instance_group)
     assert seg.num_instances > voted, "the object without masks should come back as a fallback instance"
-    d = tmp_path_factory.mktemp("run") / "run"
-    save_run(seg, d)
+    from clutt3r_core.synth import write_synth_scene
+
+    root = tmp_path_factory.mktemp("run")
+    scene_dir = write_synth_scene(scene, root / "scene", contact_sheet=False)
+    d = root / "run"
+    save_run(seg, d, scene_root=scene_dir)
     return seg, load_run(d), d, voted
 
 
@@ -155,3 +159,10 @@ def test_a_run_with_a_fallback_instance_saves_loads_explains_and_answers_a_query
     k = int(back.sv_labels[np.flatnonzero(back.instance == seg.num_instances - 1)[0]])
     explain_command(d, supervoxel=k)
     assert capsys.readouterr().out.strip()
+    from clutt3r_core.query import RunQuery
+    from tests.core.query._fake import FakeGrounder
+
+    rq = RunQuery.open(d, grounder=FakeGrounder(), use_cache=False)
+    assert rq.instances.num_instances == seg.num_instances and rq.instances.n_views[voted:].max() == 0
+    res = rq.query("orange")
+    assert 0 <= res.target < seg.num_instances
