@@ -111,9 +111,9 @@ def unvoted_instances(
     mask (0 when none); plane: [nx, ny, nz, d], normal towards the cameras (``SuperVoxels.plane``), or
     None (no support found: nothing is added); scores: (K,) voted confidences.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
+
+    from clutt3r_core.graph_ops import connected_components
 
     instance = np.asarray(instance, np.int32)
     scores = np.asarray(scores, np.float32)
@@ -128,8 +128,8 @@ def unvoted_instances(
         return none
     p = np.asarray(points, np.float64)[cand]
     pairs = cKDTree(p).query_pairs(cfg.connect_radius, output_type="ndarray")
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(cand), len(cand)))
-    n_comp, comp = connected_components(graph, directed=False)
+    comp = connected_components(len(cand), pairs[:, 0], pairs[:, 1])
+    n_comp = int(comp.max()) + 1
     pts = np.bincount(comp, weights=np.asarray(counts, np.float64)[cand], minlength=n_comp).astype(np.int64)
     top = np.full(n_comp, -np.inf)
     np.maximum.at(top, comp, height[cand])
