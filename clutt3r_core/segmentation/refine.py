@@ -457,6 +457,10 @@ def run_labels_before_contact(seg) -> np.ndarray:
     n = fused_count(seg)  # the segmented cloud; its rim voxels follow
     base = labels_before_contact(seg.trace.vote.sv_label, seg.sv_labels[:n], seg.sv_support, seg.points[:n],
                                  seg.normals[:n], seg.counts[:n], cfg.pointcloud.voxel_size, cfg.vote, refine)
+    # instances added after the vote (``segmentation.unvoted``: ids from the vote's count on) are
+    # not in its labels: their points keep the run's label (those the contact cleared stay -1)
+    added = inst[:n] >= len(seg.trace.vote.instance_group)
+    base = np.where(added, inst[:n], base)
     if n == len(inst):
         return base.astype(inst.dtype)
     from clutt3r_core.rim import attach_labels

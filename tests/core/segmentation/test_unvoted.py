@@ -96,13 +96,33 @@ def test_voted_labels_stay_and_added_instances_score_below_every_voted_one(seed,
     assert sorted(np.unique(r.instance[added]).tolist()) == list(range(k, len(r.scores)))
 
 
-def _scene_without_object_masks(obj: int):
-    """The tiny scene with every candidate mask that is mostly object ``obj`` removed."""
+def test_a_fallback_instance_is_its_own_grasp_target_under_the_contact_rule():
+    from clutt3r_core.grasping.request import request_from_segmentation
+    from clutt3r_core.pipeline import segment
+    from clutt3r_core.synth.generator import SynthConfig, generate_scene
+
+    # noisy depth: the contact rule runs, and the grasp target and the update read the labels
+    # before it (refine.run_labels_before_contact), which the vote alone never gave this instance
+    noisy = generate_scene(SynthConfig(seed=0, preset="easy", views=3, width=320, height=240, n_objects=3,
+                                       depth_noise="realsense"), progress=False)
+    seg = segment(_scene_without_object_masks(0, noisy), with_fields(SegmentConfig(), {"unvoted.min_points": 20}))
+    assert seg.trace.surface.method == "tsdf" and seg.trace.config.refine.contact_height > 0
+    voted = len(seg.trace.vote.instance_group)
+    assert seg.num_instances > voted
+    for k in range(voted, seg.num_instances):
+        own = seg.instance == k
+        target = request_from_segmentation(seg, k).target
+        assert own.any() and (target[own]).all() and not (target & (seg.instance >= 0) & ~own).any()
+
+
+def _scene_without_object_masks(obj: int, scene=None):
+    """``scene`` (the tiny scene by default) with every candidate mask that is mostly object
+    ``obj`` removed."""
     from clutt3r_core.scene import MaskCandidates
 
     from tests.core._tiny_run import tiny_scene
 
-    scene = tiny_scene()
+    scene = tiny_scene() if scene is None else scene
     views = []
     for v in scene.views:
         gt = scene.ground_truth.instance_maps.get(v.frame)
