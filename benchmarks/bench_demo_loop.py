@@ -26,7 +26,8 @@ from scipy.spatial import cKDTree
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_update import make_pair  # noqa: E402
 
-from clutt3r_core.grasping.request import request_from_segmentation, run_views, run_voxel_size  # noqa: E402
+from clutt3r_core.grasping.request import request_from_segmentation, run_views  # noqa: E402
+from clutt3r_core.runs import run_voxel_size  # noqa: E402
 from clutt3r_core.query import RunQuery, create_grounder  # noqa: E402
 from clutt3r_core.registry import create_backend  # noqa: E402
 from clutt3r_core.runs import load_run  # noqa: E402

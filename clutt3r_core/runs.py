@@ -38,6 +38,7 @@ __all__ = [
     "missing_run_file",
     "save_run",
     "load_run",
+    "run_voxel_size",
     "read_run_info",
     "run_scene_folder",
     "ply_bytes",
@@ -141,6 +142,13 @@ def _write_run_masks(prov: MaskProvenance, folder: Path) -> None:
             folder.rmdir()
     for frame, cands in zip(prov.frames, prov.candidates):
         write_png_masks(folder, frame, cands)
+
+
+def run_voxel_size(seg) -> float:
+    """The fused cloud's voxel edge of a run's ``pipeline.Segmentation`` (metres;
+    ``SegmentConfig.pointcloud.voxel_size``), 0.005 when its trace records none: the spacing the
+    update's state and a grasp request in an updated scene declare."""
+    return float(getattr(getattr(seg.trace.config, "pointcloud", None), "voxel_size", 0.005))
 
 
 def load_run(folder: str | Path):

@@ -217,6 +217,6 @@ def scene_grasp_request(data, step: int, k: int):
     ``SceneAfter.grasp_request`` (``scene_after_of``), so the Grasps tab plans what ``clutt3r grasp``
     plans. No depth views: the initial views no longer show the updated scene (a cloud-only
     collision check; the Grasps tab says so). ``SceneError`` when ``k`` is not in that scene."""
-    from clutt3r_core.grasping.request import run_voxel_size
+    from clutt3r_core.runs import run_voxel_size
 
     return scene_after_of(data, step).grasp_request(k, voxel_size=run_voxel_size(data.seg))

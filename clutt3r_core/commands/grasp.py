@@ -79,9 +79,9 @@ def grasp_command(
     from rich.console import Console
 
     from clutt3r_core.grasping import load_base_frame
-    from clutt3r_core.grasping.request import request_from_segmentation, run_views, run_voxel_size, scene_now
+    from clutt3r_core.grasping.request import request_from_segmentation, run_views, scene_now
     from clutt3r_core.registry import create_backend, default_backend
-    from clutt3r_core.runs import load_run
+    from clutt3r_core.runs import load_run, run_voxel_size
 
     console = Console(stderr=True, soft_wrap=True)
     if (instance is None) == (not query):

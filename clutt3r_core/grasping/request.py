@@ -10,13 +10,7 @@ import numpy as np
 from clutt3r_core.errors import Clutt3rError, SceneError
 from clutt3r_core.grasping import DepthView, GraspRequest
 
-__all__ = ["request_from_segmentation", "depth_views", "run_views", "request_from_run", "scene_now", "run_voxel_size"]
-
-
-def run_voxel_size(seg) -> float:
-    """The fused cloud's voxel edge of a run (metres; ``SegmentConfig.pointcloud.voxel_size``),
-    0.005 when its trace records none: the spacing a request in an updated scene declares."""
-    return float(getattr(getattr(seg.trace.config, "pointcloud", None), "voxel_size", 0.005))
+__all__ = ["request_from_segmentation", "depth_views", "run_views", "request_from_run", "scene_now"]
 
 
 def depth_views(scene) -> tuple[DepthView, ...]:
@@ -86,7 +80,7 @@ def request_from_run(run_dir: str | Path, instance: int, scene: str | Path | Non
     (None: the latest; 0: the run as segmented; ``scene_now``), as ``clutt3r grasp`` plans: a
     removed instance is a ``SceneError`` naming the update, the cloud is the updated one and there
     are no depth views (the initial views no longer show the scene)."""
-    from clutt3r_core.runs import load_run
+    from clutt3r_core.runs import load_run, run_voxel_size
     from clutt3r_core.update.scene_after import resolve_step
 
     step = resolve_step(run_dir, step)

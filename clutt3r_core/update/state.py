@@ -256,12 +256,12 @@ def _corrected_geometry_labels(seg, corrected: np.ndarray, n: int) -> np.ndarray
 def state_from_run(run_dir: str | Path) -> SceneState:
     """Step 0 of a saved run folder: its labelling after the corrections in effect in its log
     (``run_labels``; the run as segmented when it has none). ``state.labels`` records which."""
-    from clutt3r_core.runs import load_run
+    from clutt3r_core.runs import load_run, run_voxel_size
     from clutt3r_core.update.run_labels import run_labels
 
     run_dir = Path(run_dir)
     seg = load_run(run_dir)
-    voxel = float(getattr(getattr(seg.trace.config, "pointcloud", None), "voxel_size", 0.005))
+    voxel = run_voxel_size(seg)
     labels = run_labels(run_dir, seg)
     if labels.source.entries == 0:  # no log: exactly the state it always was, recorded as such
         return replace(state_from_segmentation(seg, voxel_size=voxel, run=run_dir), labels=labels.source)
