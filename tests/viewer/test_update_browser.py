@@ -44,6 +44,9 @@ def test_replay_steps_the_pose_iterations(browser, update_app, artifacts):  # no
     time.sleep(1.5)
     start = _canvas_shot(page)
     slider = page.get_by_role("slider").locator("visible=true").first
+    # the new source's range reaches the page after the server switched (test_scene_step_browser)
+    _wait(lambda: slider.get_attribute("aria-valuemax") == str(max(src.num_events, 1)),
+          what="the slider's range of the pose-iteration source")
     slider.focus()
     page.keyboard.press("End")
     _wait(lambda: sess.state.event == src.num_events, what="replay at the last iteration")
