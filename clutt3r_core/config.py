@@ -231,6 +231,8 @@ ADDED_AFTER_V1: dict[str, Any] = {
     "refine.contact_fill_high": 0.0,
     "refine.contact_fill_distance": 0.0075,
     "refine.contact_max_noise": 0.005,
+    "refine.contact_fill_mask_share": 0.0,
+    "refine.contact_fill_mask_depth": 0.005,
     "grouping.duplicate_iou": 0.0,
     "pointcloud.surface": "voxel-mean",
     "pointcloud.surface_min_points": 2,

@@ -37,6 +37,7 @@ from clutt3r_core.segmentation.grouping import (
     spatial_similarity,
 )
 from clutt3r_core.segmentation.instance_surface import smooth_instances
+from clutt3r_core.segmentation.contact_masks import mask_views
 from clutt3r_core.segmentation.refine import absorb_fragments, contact_labels, labels_before_contact
 from clutt3r_core.segmentation.trace import StageClock, StageTiming, Trace
 from clutt3r_core.segmentation.trees import InstanceTree, build_tree_overlaps
@@ -315,7 +316,17 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
         # contact is relabelled by height above each object's own support level: the lowest walls
         # the support rule took are the object's, its lowest millimetres the table's
         # (``refine.contact_labels``; on clean depth it cost AP50)
-        instance = contact_labels(points, normals, instance, len(scores), sv.plane, config.refine).instance
+        r = config.refine
+        mviews = None
+        if r.contact_fill_mask_share > 0 and r.contact_fill_high > r.contact_fill_low:
+            # ours (session 9), off by default: the fill's candidates are tested against the masks
+            # of the instance they would join (``segmentation.contact_masks``)
+            node_inst = np.full(len(nodes.view), -1, np.int64)
+            for k, gi in enumerate(vote.instance_group):
+                node_inst[list(grouping.groups[int(gi)])] = k
+            mviews = mask_views([v.camera for v in views], [v.depth for v in views], nodes_masks, nodes.view,
+                                node_inst, len(scores))
+        instance = contact_labels(points, normals, instance, len(scores), sv.plane, r, mviews).instance
     if config.instance_surface.enabled:
         # ours (issue 13), off by default: each instance's points onto a local surface fitted to its
         # own points only (never averaged across a contact); labels, counts and normals stay

@@ -26,6 +26,7 @@ from typing import Callable
 import numpy as np
 
 from clutt3r_core.errors import SceneError
+from clutt3r_core.segmentation.contact_masks import MaskViews, point_mask_votes
 from clutt3r_core.segmentation.grouping import GroupingResult, MergeStep
 from clutt3r_core.segmentation.vote import VoteConfig, VoteResult, renumber_by_score, smooth_small_supervoxels
 
@@ -106,6 +107,17 @@ class RefineConfig:
     fill from newly labelled points (3 or 10 passes) grew into the tray floors of hard scenes
     (hard_0003 54.7 -> 52.9 / 46.9)."""
 
+    contact_fill_mask_share: float = 0.0
+    """Ours (session 9), a fraction in [0, 1]; 0 = no test (the default; the fill itself is off by
+    default). With the fill on, a fill candidate keeps its new label only when at least one view
+    sees it (``contact_masks.point_mask_votes``: it projects into the image and the view's depth
+    agrees within ``contact_fill_mask_depth``) and at least this share of the views that see it put
+    it inside a mask of the instance it would join. The test only removes fill points, never adds.
+    MEASURED: see docs/benchmark/strict-iou.md, session 9."""
+    contact_fill_mask_depth: float = 0.005
+    """Ours (session 9), metres: how far a view's depth at a fill candidate's pixel may lie from the
+    candidate's own depth for the view to see it (``contact_fill_mask_share``)."""
+
     contact_max_noise: float = 0.005
     """Ours, metres: the rule leaves an object alone (no fill, no contact cleared) when its measured
     support noise (``support_levels``) exceeds this: the support around it is too noisy to tell its
@@ -127,6 +139,10 @@ class RefineConfig:
             raise SceneError(f"RefineConfig.contact_max_noise must be > 0 m, got {self.contact_max_noise}")
         if not self.contact_fill_distance > 0.0:
             raise SceneError(f"RefineConfig.contact_fill_distance must be > 0 m, got {self.contact_fill_distance}")
+        if not 0.0 <= self.contact_fill_mask_share <= 1.0:
+            raise SceneError(f"RefineConfig.contact_fill_mask_share must be in [0, 1], got {self.contact_fill_mask_share}")
+        if not self.contact_fill_mask_depth > 0.0:
+            raise SceneError(f"RefineConfig.contact_fill_mask_depth must be > 0 m, got {self.contact_fill_mask_depth}")
         if not 0.0 <= self.weak_echo_ratio <= 1.0:
             raise SceneError(f"RefineConfig.weak_echo_ratio must be in [0, 1], got {self.weak_echo_ratio}")
         if not 0.0 <= self.min_won_fraction <= 1.0:
@@ -284,6 +300,8 @@ class ContactLabels:
             unmeasured); reported, not used by the rule.
         filled: (N,) bool, unlabelled points that took an object's label.
         cleared: (N,) bool, object points left unlabelled (at the contact).
+        rejected: (N,) bool, fill candidates the mask test refused (``contact_fill_mask_share``;
+            they stay unlabelled).
     """
 
     instance: np.ndarray
@@ -291,11 +309,13 @@ class ContactLabels:
     noise: np.ndarray
     filled: np.ndarray
     cleared: np.ndarray
+    rejected: np.ndarray
 
     def __post_init__(self) -> None:
         n, k = len(self.instance), len(self.level)
-        if self.filled.shape != (n,) or self.cleared.shape != (n,) or self.noise.shape != (k,):
-            raise SceneError("ContactLabels: instance, filled, cleared (N,) and level, noise (K,) must agree")
+        if (self.filled.shape != (n,) or self.cleared.shape != (n,) or self.rejected.shape != (n,)
+                or self.noise.shape != (k,)):
+            raise SceneError("ContactLabels: instance, filled, cleared, rejected (N,) and level, noise (K,) must agree")
 
 
 SUPPORT_RING = (0.005, 0.03)
@@ -355,7 +375,7 @@ def support_levels(points: np.ndarray, normals: np.ndarray, instance: np.ndarray
 
 
 def contact_labels(points: np.ndarray, normals: np.ndarray, instance: np.ndarray, num_instances: int,
-                   plane: np.ndarray | None, cfg: RefineConfig) -> ContactLabels:
+                   plane: np.ndarray | None, cfg: RefineConfig, views: MaskViews | None = None) -> ContactLabels:
     """The object-support contact relabelled by height above each object's own support level.
 
     points, normals: (N, 3) metres / unit; instance: (N,) int, -1 = none; plane: the support plane
@@ -363,7 +383,9 @@ def contact_labels(points: np.ndarray, normals: np.ndarray, instance: np.ndarray
     1. fill (``cfg.contact_fill_low`` < ``contact_fill_high``): an unlabelled point whose nearest
        object point lies within ``contact_fill_distance`` takes that object's label when its height
        above the object's level is in [low, high) (the object's lowest walls, which the support
-       rule made ground);
+       rule made ground); with ``cfg.contact_fill_mask_share`` > 0, only a candidate that ``views``
+       (``contact_masks.mask_views``) see, and put inside that object's masks in at least that
+       share of the views that see it (``contact_masks.point_mask_votes``), takes it;
     2. contact (``cfg.contact_height`` > 0): an object point (after the fill) less than
        ``contact_height`` above its object's level is left unlabelled (depth noise mixes the
        object's lowest millimetres with the support; points below the level count too: the
@@ -376,13 +398,17 @@ def contact_labels(points: np.ndarray, normals: np.ndarray, instance: np.ndarray
     none = np.zeros(n, bool)
     fill_on = cfg.contact_fill_high > cfg.contact_fill_low
     if plane is None or n == 0 or num_instances == 0 or not contact_on(cfg):
-        return ContactLabels(inst, np.zeros(num_instances), np.full(num_instances, np.nan), none, none.copy())
+        return ContactLabels(inst, np.zeros(num_instances), np.full(num_instances, np.nan), none, none.copy(),
+                             none.copy())
     pl = np.asarray(plane, np.float64).reshape(4)
     p = np.asarray(points, np.float64)
     h = p @ pl[:3] + pl[3]
     level, noise = support_levels(p, normals, inst, num_instances, pl)
     noisy = noise > cfg.contact_max_noise  # (NaN: too few ring points, level 0 = the plane; kept)
     filled = np.zeros(n, bool)
+    rejected = np.zeros(n, bool)
+    if fill_on and cfg.contact_fill_mask_share > 0 and views is None:
+        raise SceneError("contact_labels: the fill's mask test (contact_fill_mask_share > 0) needs the views")
     if fill_on:
         obj = np.flatnonzero(inst >= 0)
         # only unlabelled points at a height some object's fill band can reach (a tenth of them)
@@ -395,6 +421,12 @@ def contact_labels(points: np.ndarray, normals: np.ndarray, instance: np.ndarray
             un, lab = un[hit], inst[obj[j[hit]]]
             rel = h[un] - level[lab]
             take = (rel >= cfg.contact_fill_low) & (rel < cfg.contact_fill_high) & ~noisy[lab]
+            if cfg.contact_fill_mask_share > 0 and take.any():
+                t = np.flatnonzero(take)
+                votes = point_mask_votes(p[un[t]], lab[t], views, cfg.contact_fill_mask_depth)
+                ok = (votes.seen > 0) & (votes.inside >= cfg.contact_fill_mask_share * votes.seen)
+                rejected[un[t[~ok]]] = True
+                take[t[~ok]] = False
             inst[un[take]] = lab[take]
             filled[un[take]] = True
     cleared = np.zeros(n, bool)
@@ -402,7 +434,7 @@ def contact_labels(points: np.ndarray, normals: np.ndarray, instance: np.ndarray
         lab = inst >= 0
         cleared[lab] = (h[lab] - level[inst[lab]] < cfg.contact_height) & ~noisy[inst[lab]]
         inst[cleared] = -1
-    return ContactLabels(inst, level, noise, filled & ~cleared, cleared & ~filled)
+    return ContactLabels(inst, level, noise, filled & ~cleared, cleared & ~filled, rejected)
 
 
 def contact_on(cfg: RefineConfig) -> bool:
