@@ -113,6 +113,9 @@ ADDITIONS: tuple[Addition, ...] = (
              (("grouping.duplicate_iou", 0.9, 0.0),)),
     Addition("overlap-gate", "stage 2 only merges groups that share a super-voxel (mean S_spatial > 0)",
              (("grouping.semantic_needs_overlap", True, False),)),
+    Addition("overlap-gate-min", "stage 2 only merges groups whose mean S_spatial is at least 0.01 (not a stray "
+             "mask edge on a shared super-voxel)",
+             (("grouping.semantic_min_spatial", 0.01, 0.0),), needs=("overlap-gate",)),
     Addition("coverage-guard", "a super-voxel goes to its winner only if one of its masks covers >= 50 % of it",
              (("vote.min_coverage", 0.5, 0.0),)),
     Addition("abs-normal-dot", "|<n_i, n_j>| instead of <n_i, n_j> in eq. 1",

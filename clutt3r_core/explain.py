@@ -40,7 +40,8 @@ RULE_TEXT = {
     "copy_of_parent": "a childless copy of a parent mask of its view (pixel IoU >= grouping.duplicate_iou): "
                       "no candidate (segmentation/duplicates.py)",
     "one_mask_per_view": "their groups share a view (one mask per view per group)",
-    "overlap_gate": "stage-2 overlap gate: their groups share no super-voxel (mean S_spatial = 0)",
+    "overlap_gate": "stage-2 overlap gate: their groups share no super-voxel, or only a sliver (mean S_spatial 0 or "
+                    "under grouping.semantic_min_spatial)",
     "below_tau_spat": "mean S_spatial of their groups below tau_spat",
     "below_tau_sem": "mean S_semantic of their groups below tau_sem",
     "group_dropped": "their group is not an instance (vote filters)",
@@ -325,7 +326,10 @@ def _stop_rule(st, cfg, ga, gb, shared, sp, score, si, bset) -> tuple[str, tuple
     rules = []
     if shared and (cfg.one_mask_per_view or (len(ga) == 1 and len(gb) == 1)):
         rules.append("one_mask_per_view")
-    if st.stage == "semantic" and cfg.semantic_needs_overlap and not sp > 0.0:
+    # the overlap gate: S_spatial must be above 0 and at least ``semantic_min_spatial`` (older
+    # configs have no such field: 0)
+    if st.stage == "semantic" and cfg.semantic_needs_overlap and not (
+            sp > 0.0 and sp >= getattr(cfg, "semantic_min_spatial", 0.0)):
         rules.append("overlap_gate")
     key = (si, min(ga[0], gb[0]), max(ga[0], gb[0]))
     if key in bset:  # recorded: a rule blocked a pair whose score reached tau

@@ -157,10 +157,10 @@ def leaf_graphs(draw):
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(leaf_graphs(), st.sampled_from([0.3, 0.5]), st.booleans())
-def test_every_pair_apart_has_a_rule_its_numbers_back(graph, tau, gate):
+@given(leaf_graphs(), st.sampled_from([0.3, 0.5]), st.booleans(), st.sampled_from([0.0, 0.01, 0.2]))
+def test_every_pair_apart_has_a_rule_its_numbers_back(graph, tau, gate, min_spatial):
     spec, emb = graph
-    gcfg = GroupingConfig(tau_spat=tau, tau_sem=0.6, semantic_needs_overlap=gate)
+    gcfg = GroupingConfig(tau_spat=tau, tau_sem=0.6, semantic_needs_overlap=gate, semantic_min_spatial=min_spatial)
     t, _ = make_trace(spec, emb=emb, gcfg=gcfg)
     n = t.nodes
     # recording never changes the result
@@ -187,8 +187,8 @@ def test_every_pair_apart_has_a_rule_its_numbers_back(graph, tau, gate):
                     assert c.score < c.tau
                 elif c.rule == "one_mask_per_view":
                     assert c.shared_views
-                elif c.rule == "overlap_gate":
-                    assert c.spatial <= 0.0
+                elif c.rule == "overlap_gate":  # no shared super-voxel, or under semantic_min_spatial
+                    assert not (c.spatial > 0.0 and c.spatial >= min_spatial)
 
 
 def test_trace_round_trip_and_old_traces(tmp_path):

@@ -237,9 +237,10 @@ def test_semantic_min_spatial_keeps_look_alikes_apart_that_share_a_sliver():
     spec = [(0, 1, None, x), (1, 1, None, x), (2, 1, None, occ(*Y)), (3, 1, None, occ(*Y))]
     emb = np.tile(np.array([[1.0, 0.0]], np.float32), (4, 1))
     nodes, sim, O, idx, V = build(spec, emb=emb)
-    plain = run_grouping(nodes, sim, V, GroupingConfig())
+    plain = run_grouping(nodes, sim, V, GroupingConfig(semantic_min_spatial=0.0))
     assert len(plain.groups) == 1 and 0 < plain.merges[-1].spatial < 0.01
-    gated = run_grouping(nodes, sim, V, GroupingConfig(semantic_min_spatial=0.01))
+    gated = run_grouping(nodes, sim, V, GroupingConfig())  # the default gate (0.01, session 9)
+    assert GroupingConfig().semantic_min_spatial == 0.01
     assert len(gated.groups) == 2 and all(m.stage == "spatial" for m in gated.merges)
 
 
