@@ -9,6 +9,12 @@ after the latest one (``--step K`` picks another; 0 = the run as segmented;
 a displaced one is grasped at its new pose, an added one is graspable, and the collision check
 uses the updated cloud (not the initial depth views, which no longer show the scene). The grasp
 file records ``"step"``.
+
+At step 0 the ids are those of the run's correction log (the viewer's Edit tab;
+``update.run_labels.step_zero_labels``): ``--instance K`` of a deleted or merged id is one clear
+error (a merged one names the id it joined), the target is the corrected instance's points before
+the contact rule (a merge: the union of its parts'), and ``grasps.json`` records the log state in
+``"corrections"`` (absent for a run without a log: the file is what it always was).
 """
 
 from __future__ import annotations
@@ -97,6 +103,7 @@ def grasp_command(
     step = resolve_step(run, step)  # a bad --step: one clear error before anything loads
     seg = load_run(run)
     notes: list[str] = []
+    corrections = None  # the correction log state a step-0 target's ids came from (grasps.json "corrections")
     if query:
         instance, note = _target_from_query(run, query, scene, step)
         if note:
@@ -109,15 +116,22 @@ def grasp_command(
         console.print(f"{sa.label}: collision check against the updated cloud (the initial depth views no longer "
                       "show the scene)")
     else:
-        if not 0 <= instance < seg.num_instances:
-            raise SystemExit(f"clutt3r grasp: {run}: instance {instance} does not exist "
-                             f"(the run has instances 0..{seg.num_instances - 1})")
-        if n_updates:
-            console.print("the run as segmented (--step 0)")
+        from clutt3r_core.errors import SceneError
+        from clutt3r_core.update.run_labels import step_zero_labels
+
+        # the Edit tab's ids (the correction log's edits in effect), as the query above ranked them
+        labels = step_zero_labels(seg, run)
+        try:
+            labels.check_target(instance)
+        except SceneError as e:
+            raise SystemExit(f"clutt3r grasp: {run}: {e}") from None
+        corrections = labels.to_json()
+        if n_updates or labels.source.entries:
+            console.print(labels.describe() + (" (--step 0)" if n_updates else ""))
         views, warn = run_views(run, scene)
         if warn:
             notes.append(warn)
-        req = request_from_segmentation(seg, instance, views)
+        req = request_from_segmentation(seg, instance, views, labels=labels)
     name = planner or default_backend("grasp_planner")
     gp = create_backend("grasp_planner", name, **({"config": config} if name == "antipodal" else {}))
     t0 = time.perf_counter()
@@ -128,7 +142,7 @@ def grasp_command(
         notes.append(gs.message)
     run = Path(run)
     rec_step = step if n_updates else None  # a run without updates writes what it always wrote
-    gs.save_json(run / "grasps.json", instance, query or None, T_base_world, rec_step)
+    gs.save_json(run / "grasps.json", instance, query or None, T_base_world, rec_step, corrections)
     gs.save_npz(run / "grasps.npz")
     for n in notes:
         console.print(f"[yellow]note:[/] {n}")
@@ -144,5 +158,5 @@ def grasp_command(
                           f"centre ({p[0, 3]:+.3f}, {p[1, 3]:+.3f}, {p[2, 3]:+.3f}) m  "
                           f"approach ({p[0, 2]:+.2f}, {p[1, 2]:+.2f}, {p[2, 2]:+.2f})")
     if json:
-        sys.stdout.write(_json.dumps(gs.to_json(instance, query or None, T_base_world, rec_step)) + "\n")
+        sys.stdout.write(_json.dumps(gs.to_json(instance, query or None, T_base_world, rec_step, corrections)) + "\n")
         sys.stdout.flush()

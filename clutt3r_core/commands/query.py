@@ -11,6 +11,14 @@ after the latest one (``--step K`` picks another; 0 = the run as segmented), whi
 names ("scene after update 2 (frame 9)"): removed instances are not ranked, added ones are, and
 the target's points are where the object is now. The JSON object and the npz then carry
 ``step`` (and the JSON ``scene``).
+
+At step 0 (no updates, or ``--step 0``) the ids are those of the run's correction log (the Edit
+tab's: ``update.run_labels.step_zero_labels``): deleted and merged ids are not ranked, a merged
+instance is ranked once with its parts' evidence, and the target's points are its corrected
+points. The output names the log state ("the run as segmented, with its corrections (correction
+log entry 3 (3 edit(s) in effect))"); the JSON then has ``step`` 0, ``scene`` and
+``corrections`` (entries, edits in effect, SHA-256 of the labels). A run whose log changes no
+label is queried exactly as without one.
 The first query on a run embeds its masks (progress bar) and caches them in
 ``RUN/query_cache.npz``.
 """
@@ -91,6 +99,8 @@ def query_command(
     if json:
         out = res.to_json()
         out["time_s"] = round(total, 4)
+        if rq.labelling is not None:  # step 0 of a corrected run: which correction log state ranked
+            out["corrections"] = rq.labelling.to_json()
         print(_json.dumps(out))
         return
     con = Console()

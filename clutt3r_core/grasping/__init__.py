@@ -107,7 +107,7 @@ class GraspSet:
 
     # -- json (grasps.json and `clutt3r grasp --json`) ---------------------------------------
     def to_json(self, target: int, query: str | None = None, T_base_world: np.ndarray | None = None,
-                step: int | None = None) -> dict:
+                step: int | None = None, corrections: dict | None = None) -> dict:
         """``{"target": id, "query": text or null, "grasps": [{"T_world_gripper", "width", "score"}, ...]}``.
 
         ``step``: for a run with updates, the updates applied to the scene planned in (recorded as
@@ -133,6 +133,8 @@ class GraspSet:
             out["message"] = self.message
         if step is not None:
             out["step"] = int(step)
+        if corrections is not None:  # the correction log state the target's ids came from (update.run_labels)
+            out["corrections"] = corrections
         return out
 
     @staticmethod
@@ -153,10 +155,12 @@ class GraspSet:
                         str(obj.get("message", "")))
 
     def save_json(self, path: str | Path, target: int, query: str | None = None,
-                  T_base_world: np.ndarray | None = None, step: int | None = None) -> Path:
+                  T_base_world: np.ndarray | None = None, step: int | None = None,
+                  corrections: dict | None = None) -> Path:
         from clutt3r_core.io.images import atomic_write_bytes
 
-        atomic_write_bytes(Path(path), json.dumps(self.to_json(target, query, T_base_world, step), indent=1).encode())
+        atomic_write_bytes(Path(path), json.dumps(self.to_json(target, query, T_base_world, step, corrections),
+                                                  indent=1).encode())
         return Path(path)
 
     @staticmethod

@@ -19,14 +19,22 @@ def depth_views(scene) -> tuple[DepthView, ...]:
 
 
 def request_from_segmentation(seg, instance: int, views: tuple[DepthView, ...] = (),
-                              target: np.ndarray | None = None) -> GraspRequest:
+                              target: np.ndarray | None = None, labels=None) -> GraspRequest:
     """The request for ``instance`` of a ``pipeline.Segmentation`` (its whole fused cloud, support included).
 
     ``target``: an explicit (N,) bool target mask instead of ``seg.instance == instance``
     (e.g. ground-truth labels in the benchmark).
+    ``labels``: the run's labelling at step 0 (``update.run_labels.StepZeroLabels``, its correction
+    log's edits): ``instance`` is then one of its ids (a deleted or merged id is one clear
+    ``SceneError`` saying so) and the target is its points before the contact rule. None: the run's
+    own ids, as segmented.
     """
     k = int(instance)
-    if target is None:
+    if target is None and labels is not None:
+        if len(labels.geometry) != len(seg.points):
+            raise SceneError(f"the labelling has {len(labels.geometry)} points, the run {len(seg.points)}")
+        target = labels.target(k)
+    elif target is None:
         if not 0 <= k < seg.num_instances:
             raise SceneError(f"instance {k} does not exist: the run has instances 0..{seg.num_instances - 1}")
         # the instance with its contact to the support (``refine.run_labels_before_contact``): the
@@ -79,8 +87,11 @@ def request_from_run(run_dir: str | Path, instance: int, scene: str | Path | Non
     When the run has updates (``RUN/updates``), the request is in the scene after ``step`` of them
     (None: the latest; 0: the run as segmented; ``scene_now``), as ``clutt3r grasp`` plans: a
     removed instance is a ``SceneError`` naming the update, the cloud is the updated one and there
-    are no depth views (the initial views no longer show the scene)."""
+    are no depth views (the initial views no longer show the scene). At step 0 the ids are those of
+    the run's correction log (``update.run_labels.step_zero_labels``: the Edit tab's ids; a deleted
+    or merged id is a ``SceneError`` saying so)."""
     from clutt3r_core.runs import load_run, run_voxel_size
+    from clutt3r_core.update.run_labels import step_zero_labels
     from clutt3r_core.update.scene_after import resolve_step
 
     step = resolve_step(run_dir, step)
@@ -89,32 +100,17 @@ def request_from_run(run_dir: str | Path, instance: int, scene: str | Path | Non
         sa = scene_now(run_dir, step, seg, scene)
         return (sa.grasp_request(instance, voxel_size=run_voxel_size(seg)), seg,
                 f"{sa.label}: collision check against the updated cloud")
+    labels = step_zero_labels(seg, run_dir)
+    labels.check_target(instance)  # before the scene's views load
     views, warn = run_views(run_dir, scene)
-    return request_from_segmentation(seg, instance, views), seg, warn
+    return request_from_segmentation(seg, instance, views, labels=labels), seg, warn
 
 
 def scene_now(run: str | Path, step: int | None, seg=None, scene: str | Path | None = None):
     """The run's ``update.scene_after.SceneAfter`` at ``step`` (None: the latest); the added
-    instances' normals face the camera of the post view that added them: the camera its
-    ``update.json`` records (since session 8), else the scene folder's view of that frame when
-    it has one (updates written before), else +z (``scene_after.oriented_normals``)."""
-    from clutt3r_core.update.scene_after import added_masks, post_cameras, resolve_step, scene_after, update_docs
+    instances' normals face the camera of the post view that added them
+    (``update.scene_after.post_eyes``: the one place the query and the grasp find it)."""
+    from clutt3r_core.update.scene_after import post_eyes, resolve_step, scene_after
 
     step = resolve_step(run, step)
-    docs = update_docs(run, step)
-    frames = {f for _, f, _ in added_masks(run, step, docs)}
-    eyes = {f: c.T_world_camera[:3, 3] for f, c in post_cameras(run, step, docs).items() if f in frames}
-    if frames - set(eyes):  # older update.json files: the scene folder's views (~0.2 s to load it)
-        try:
-            from clutt3r_core.io import load_scene
-            from clutt3r_core.runs import run_scene_folder
-
-            folder = Path(scene) if scene is not None else run_scene_folder(run)
-            if folder is not None:
-                sc = load_scene(folder, load_gt=False)
-                for v in sc.views:
-                    if v.frame in frames and v.frame not in eyes:
-                        eyes[v.frame] = v.camera.T_world_camera[:3, 3]
-        except Clutt3rError:
-            pass  # no scene folder: +z (the module says so)
-    return scene_after(run, step, seg=seg, eyes=eyes)
+    return scene_after(run, step, seg=seg, eyes=post_eyes(run, step, scene))

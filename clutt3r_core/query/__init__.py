@@ -106,6 +106,10 @@ class RunQuery:
     described: frozenset = frozenset()
     """Added instance ids the backend described (their mask in the post view); the others
     present in ``scene`` cannot be ranked."""
+    labelling: object = None
+    """At step 0 of a run whose correction log changes its labels: the labelling queried
+    (``update.run_labels.StepZeroLabels``; ``scene`` is then the run in those ids, ``instances``
+    their evidence). None: the run's own ids, or the scene after updates."""
 
     @classmethod
     def open(
@@ -118,6 +122,7 @@ class RunQuery:
         grounder=None,
         use_cache: bool = True,
         step: int | None = None,
+        corrections: bool = True,
     ) -> "RunQuery":
         """Open a run folder; compute (with a progress bar if asked) and cache its evidence
         when ``RUN/query_cache.npz`` is absent or stale.
@@ -129,6 +134,11 @@ class RunQuery:
                 (None: all; 0: the run as segmented); removed instances are not ranked, added
                 ones are described from their mask in the post view. A step the chain does not
                 have is one clear error.
+            corrections: at step 0, rank the ids of the run's correction log (the Edit tab's:
+                ``update.run_labels.step_zero_labels``; deleted and merged ids are not ranked, a
+                merge's evidence mixes its parts', ``corrected_evidence``), as the update chain
+                does after step 0. False: the run's own ids whatever its log (rows = run
+                instances, for the update's re-embedding, which mixes them itself).
         """
         from clutt3r_core.update.scene_after import resolve_step
 
@@ -166,18 +176,46 @@ class RunQuery:
             if stale:
                 save_node_evidence(ev, run_dir / CACHE_NAME, key)
         rq = cls.from_evidence(seg, g, ev, config, run_dir)
-        return rq._after_updates(step, scene_of)
+        if step == 0 and corrections:
+            from clutt3r_core.update.run_labels import step_zero_labels
 
-    def _after_updates(self, step: int, scene_of) -> "RunQuery":
-        """This run query on the scene after ``step`` updates (itself when the run has none)."""
+            z = step_zero_labels(seg, run_dir)
+            if z.corrected:
+                return rq.with_labelling(z)
+        return rq._after_updates(step, scene_of, scene)
+
+    def with_labelling(self, z) -> "RunQuery":
+        """This run query (rows = the run's instances) on the corrected labelling ``z`` at step 0
+        (``update.run_labels.StepZeroLabels``): its evidence carried to the corrected ids
+        (``corrected_evidence`` over ``z.share``, as after an update), and ``scene`` the run's cloud
+        in those ids (``SceneAfter`` at step 0: ``present`` = the ids with points, not deleted or
+        merged), so ``query`` ranks them and ``target_points`` reads their points. ``z`` with the
+        run's own ids: itself."""
+        from dataclasses import replace
+
+        from clutt3r_core.update.scene_after import ChainInputs, build_scene_after, chain_length
+
+        if not z.corrected:
+            return self
+        seg, lab = self.seg, z.labels
+        inst = corrected_evidence(self.instances, z.share, self.evidence.label_embeddings is not None)
+        sa = build_scene_after(ChainInputs(
+            points=seg.points, colors=seg.colors, normals=seg.normals, instance=lab.instance, ids=lab.ids,
+            num_ids=lab.num_ids, n_updates=chain_length(self.run_dir) if self.run_dir is not None else 0,
+            run=self.run_dir, run_share=z.share))
+        return replace(self, scene=sa, instances=inst, labelling=z)
+
+    def _after_updates(self, step: int, scene_of, scene: str | Path | None = None) -> "RunQuery":
+        """This run query on the scene after ``step`` updates (itself when the run has none); the
+        added instances' normals as ``clutt3r grasp`` has them (``scene_after.post_eyes``)."""
         from dataclasses import replace
 
         from clutt3r_core.query.added import added_instance_evidence
-        from clutt3r_core.update.scene_after import added_masks, chain_length, scene_after
+        from clutt3r_core.update.scene_after import added_masks, chain_length, post_eyes, scene_after
 
         if self.run_dir is None or chain_length(self.run_dir) == 0:
             return self
-        sa = scene_after(self.run_dir, step, seg=self.seg)
+        sa = scene_after(self.run_dir, step, seg=self.seg, eyes=post_eyes(self.run_dir, step, scene))
         adds = [a for a in added_masks(self.run_dir, step) if a[0] in sa.added]
         inst, done = self.instances, frozenset()
         if sa.run_share is not None:  # the chain's ids are the Edit tab's corrected ones (update.run_labels)
@@ -212,7 +250,8 @@ class RunQuery:
     def query(self, text: str) -> QueryResult:
         if self.scene is not None:
             sa = self.scene
-            return self.query_among(text, self.ranked_ids(), sa.step, sa.label, int(sa.present.max(initial=-1)) + 1)
+            label = self.labelling.describe() if self.labelling is not None else sa.label
+            return self.query_among(text, self.ranked_ids(), sa.step, label, int(sa.present.max(initial=-1)) + 1)
         t0 = time.perf_counter()
         q = parse_query(text)
         emb = self.grounder.embed_text([q.name])[0] if q.name else None

@@ -68,7 +68,7 @@ def run_instance_embeddings(run_dir: str | Path, embedder=None, name: str | None
     if not hasattr(g, "mask_evidence"):
         raise Clutt3rError(f"embedder '{getattr(g, 'name', name)}' has no per-mask evidence "
                            "(clutt3r_core.language.base.Grounder); use the run's own embedder")
-    rq = RunQuery.open(run_dir, grounder=g, scene=scene, step=0)  # rows = the run's ids, whatever its updates
+    rq = RunQuery.open(run_dir, grounder=g, scene=scene, step=0, corrections=False)  # rows = the run's ids, always
     return np.asarray(rq.instances.features, np.float32)
 
 

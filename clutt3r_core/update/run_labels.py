@@ -29,7 +29,8 @@ from clutt3r_core.errors import SceneError, SceneFileError
 from clutt3r_core.run_files import CORRECTION_LOG as LOG_NAME
 
 __all__ = ["LabelSource", "RunLabels", "run_labels", "labels_sha256", "chain_source", "labels_change", "stale_note",
-           "run_share", "fused_count", "LOG_NAME"]
+           "run_share", "fused_count", "LOG_NAME", "StepZeroLabels", "step_zero_labels", "corrected_geometry_labels",
+           "gone_reasons"]
 
 
 def labels_sha256(instance: np.ndarray) -> str:
@@ -127,25 +128,38 @@ def run_labels(run_dir: str | Path, seg=None, entries: int | None = None) -> Run
         n_ids = int(seg.num_instances) if seg is not None else int(inst.max(initial=-1)) + 1
         ids = np.unique(inst[inst >= 0]).astype(np.int32)
         return RunLabels(inst, ids, max(n_ids, len(ids) and int(ids[-1]) + 1), LabelSource(0, 0, labels_sha256(inst)))
-    import warnings
+    from clutt3r_core.corrections import apply
 
-    from clutt3r_core.annotations import Annotations, CorrectionLogWarning
-    from clutt3r_core.corrections import active_edits, apply
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", CorrectionLogWarning)  # a torn last line: the editor reports it
-        ann = Annotations.open(run_dir, segmentation=seg, readonly=True)
+    ann = _open_log(run_dir, seg)
     ops = ann.ops
     n = len(ops) if entries is None else int(entries)
     if n > len(ops):
         raise SceneFileError(log, f"has {len(ops)} entries, but the update chain was computed after {n} "
                                   "(the log was replaced or cut?)")
     lab = ann.current if n == len(ops) else apply(ann.base, ops[:n])
-    active = len(active_edits(ops[:n])[0])
+    return _of_corrected(lab, ops[:n])
+
+
+def _open_log(run_dir: Path, seg):
+    """The run's ``Annotations``, read-only (a torn last line is left to the editor to report)."""
+    import warnings
+
+    from clutt3r_core.annotations import Annotations, CorrectionLogWarning
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CorrectionLogWarning)
+        return Annotations.open(run_dir, segmentation=seg, readonly=True)
+
+
+def _of_corrected(lab, ops) -> RunLabels:
+    """``RunLabels`` of a ``corrections.CorrectedLabels`` that the log entries ``ops`` give."""
+    from clutt3r_core.corrections import active_edits
+
     counts = lab.point_counts()
     ids = np.flatnonzero(~lab.deleted & (counts > 0)).astype(np.int32)
     cats = tuple((int(k), lab.categories[k]) for k in ids if lab.categories[k])
-    return RunLabels(lab.instance, ids, lab.num_instances, LabelSource(n, active, labels_sha256(lab.instance), cats))
+    return RunLabels(lab.instance, ids, lab.num_instances,
+                     LabelSource(len(ops), len(active_edits(ops)[0]), labels_sha256(lab.instance), cats))
 
 
 def fused_count(seg) -> int:
@@ -240,3 +254,185 @@ def stale_note(run_dir: str | Path, seg=None, frame: int | None = None) -> str |
             f"the corrections now give {now.source.describe()} ({what}), so their instance ids are "
             f"the old labelling's. Recompute: clutt3r update {run_dir} --frame {f} --recompute "
             f"(moves {first.parent.name}/ aside to updates.stale-<time>/, deletes nothing)")
+
+
+# -- step 0: the labelling every consumer of a run reads before any update -------------------------
+
+
+def corrected_geometry_labels(seg, corrected: np.ndarray, n: int, pre: np.ndarray | None = None) -> np.ndarray:
+    """(n,) int32: the corrected labels of the run's first n points, with the points the contact rule
+    cleared (labelled before it, unlabelled in the run and left unlabelled by the corrections) given
+    the corrected id of the nearest point of their own pre-contact instance that has one. A merge
+    carries them to the merged id, a split to the nearer part; a deleted instance keeps them
+    unlabelled (none of its points has an id). Without this a correction brought the contact's
+    labels back into the update's geometry (``state._geometry_labels``: the moved clamp read
+    static) and into the grasp target (``StepZeroLabels.geometry``).
+
+    ``pre``: ``refine.run_labels_before_contact(seg)`` when already computed (the viewer keeps it)."""
+    if pre is None:
+        from clutt3r_core.segmentation.refine import run_labels_before_contact
+
+        pre = run_labels_before_contact(seg)
+    out = np.array(corrected[:n], np.int32)
+    pre = np.asarray(pre)[:n]
+    cleared = (pre >= 0) & (np.asarray(seg.instance[:n]) < 0) & (out < 0)
+    if not cleared.any():
+        return out
+    from scipy.spatial import cKDTree
+
+    pts = np.asarray(seg.points[:n])
+    for k in np.unique(pre[cleared]):
+        src = np.flatnonzero((pre == k) & (out >= 0))
+        if len(src):
+            dst = np.flatnonzero(cleared & (pre == k))
+            out[dst] = out[src[cKDTree(pts[src]).query(pts[dst])[1]]]
+    return out
+
+
+def gone_reasons(ops, lab, corrected: bool = True) -> dict[int, str]:
+    """{id: why it is not an instance any more} for the ids of ``lab`` (``corrections.CorrectedLabels``
+    after the log entries ``ops``) that are deleted, merged, or (when ``corrected``) left without
+    points by the corrections. A merged id names the id it joined and, when that one was merged on
+    or deleted since, where its points are now. Entry numbers are 1-based lines of the log."""
+    from clutt3r_core.corrections import Delete, Merge, active_edits
+
+    into: dict[int, tuple[int, int]] = {}  # merged id -> (id it joined, log index)
+    deleted: dict[int, int] = {}  # deleted id -> log index
+    for i in active_edits(ops)[0]:
+        op = ops[i]
+        if isinstance(op, Merge):
+            for o in op.merged:
+                into[int(o)] = (int(op.into), i)
+        elif isinstance(op, Delete):
+            deleted[int(op.instance)] = i
+    out: dict[int, str] = {}
+    where = f"in the Edit tab ({LOG_NAME} entry"
+    for k, i in deleted.items():
+        out[k] = f"I{k} was deleted {where} {i + 1}): its points are background"
+    for k, (j, i) in into.items():
+        end, seen = j, {k}
+        while end in into and end not in seen:  # merged on since: follow to the id holding the points now
+            seen.add(end)
+            end = into[end][0]
+        msg = f"I{k} was merged into I{j} {where} {i + 1})"
+        if end != j:
+            msg += f", which is now part of I{end}"
+        out[k] = msg + (f"; I{end} was deleted since" if end in deleted else f": its points are I{end}'s now")
+    if corrected:
+        counts = lab.point_counts()
+        for k in np.flatnonzero((counts == 0) & ~lab.deleted).tolist():
+            out.setdefault(int(k), f"I{k} has no points after the corrections in {LOG_NAME} (relabelled away)")
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class StepZeroLabels:
+    """The labelling every consumer of a run reads at step 0 (before any update): ``clutt3r query`` /
+    ``clutt3r grasp``, the viewer's Query and Grasps tabs (``step_zero_labels``).
+
+    Attributes:
+        labels: the run's labelling after its correction log (``RunLabels``: the Edit tab's ids; the
+            run's own when there is no log or its edits change nothing). ``labels.instance`` is what
+            the Edit tab shows (the contact rule's labels); the query's target points read it.
+        geometry: (N,) int32 over the run's whole cloud: the labels before the contact rule
+            (``refine.run_labels_before_contact``) in the same ids, as the update's geometry reads
+            them (``corrected_geometry_labels``); the grasp target of id k is ``geometry == k``
+            (a merged id: the union of its parts' pre-contact points).
+        share: (num_ids, run instances) float64 ``run_share`` when the ids are corrected (to carry
+            per-run-instance evidence to them, ``query.corrected_evidence``), None when they are
+            the run's own (no log, or edits that change no label).
+        gone: {id: reason} for ids that are no target (deleted, merged, emptied), ``gone_reasons``.
+    """
+
+    labels: RunLabels
+    geometry: np.ndarray
+    share: np.ndarray | None = None
+    gone: dict = None  # type: ignore[assignment]
+
+    def __post_init__(self) -> None:
+        g = np.ascontiguousarray(np.asarray(self.geometry, np.int32))
+        if g.shape != self.labels.instance.shape:
+            raise SceneError(f"StepZeroLabels: geometry {g.shape} and labels {self.labels.instance.shape} must agree")
+        g.setflags(write=False)
+        object.__setattr__(self, "geometry", g)
+        from types import MappingProxyType
+
+        object.__setattr__(self, "gone", MappingProxyType(dict(self.gone or {})))
+        if self.share is not None:
+            s = np.asarray(self.share, np.float64)
+            if s.ndim != 2 or s.shape[0] != self.labels.num_ids:
+                raise SceneError(f"StepZeroLabels: share must be ({self.labels.num_ids}, K), got {s.shape}")
+            s.setflags(write=False)
+            object.__setattr__(self, "share", s)
+
+    @property
+    def corrected(self) -> bool:
+        """True when the ids are not the run's own (``share`` is set)."""
+        return self.share is not None
+
+    @property
+    def source(self) -> LabelSource:
+        return self.labels.source
+
+    def check_target(self, k: int) -> None:
+        """One clear ``SceneError`` when id ``k`` cannot be a target (deleted, merged: names the id it
+        joined, emptied, out of range)."""
+        k = int(k)
+        if k in self.gone:
+            raise SceneError(f"instance {k} is not a target: {self.gone[k]}")
+        n = self.labels.num_ids
+        if not 0 <= k < n:
+            raise SceneError(f"instance {k} does not exist: the run has instances 0..{n - 1}"
+                             + (f" (after {self.source.describe()})" if self.source.entries else ""))
+
+    def target(self, k: int) -> np.ndarray:
+        """(N,) bool the grasp target of id ``k``: its points before the contact rule (``check_target``)."""
+        self.check_target(k)
+        return self.geometry == int(k)
+
+    def describe(self) -> str:
+        """"the run as segmented" or "the run as segmented, with its corrections (correction log entry 5 (3
+        edit(s) in effect))" (what the commands print)."""
+        if not self.source.entries:
+            return "the run as segmented"
+        return f"the run as segmented, with its corrections ({self.source.describe()})"
+
+    def to_json(self) -> dict | None:
+        """``LabelSource.to_json`` of the labelling (what grasps.json records), None without a log."""
+        return self.source.to_json() if self.source.entries else None
+
+
+def step_zero_labels(seg, run_dir: str | Path | None = None, annotations=None,
+                     pre: np.ndarray | None = None) -> StepZeroLabels:
+    """The labelling the consumers of a run read at step 0 (``StepZeroLabels``): its correction log's
+    edits in effect on ``seg`` (the run's ``pipeline.Segmentation``), read from ``run_dir`` (the log
+    on disk) or from ``annotations`` (an open ``annotations.Annotations``: the viewer's live edits).
+    Neither, or no log: the run's own labels. The ids stay the run's (``share`` None) when the edits
+    change no label; ``geometry`` is then ``refine.run_labels_before_contact(seg)`` exactly (what the
+    grasp target always was). ``pre``: that array when already computed."""
+    from clutt3r_core.segmentation.refine import run_labels_before_contact
+
+    if annotations is None and run_dir is not None and (Path(run_dir) / LOG_NAME).is_file():
+        annotations = _open_log(Path(run_dir), seg)
+    lab, ops = None, ()
+    if annotations is not None:
+        from contextlib import nullcontext
+
+        # one edit's labels with that edit's log entries (the viewer's tabs edit live)
+        with getattr(annotations, "_lock", None) or nullcontext():
+            lab, ops = annotations.current, annotations.ops
+        if len(lab.instance) != len(seg.points):
+            raise SceneError(f"the corrections have {len(lab.instance)} points, the run {len(seg.points)}")
+        labels = _of_corrected(lab, ops)
+    else:
+        inst = np.asarray(seg.instance, np.int32)
+        ids = np.unique(inst[inst >= 0]).astype(np.int32)
+        labels = RunLabels(inst, ids, int(seg.num_instances), LabelSource(0, 0, labels_sha256(inst)))
+    if pre is None:
+        pre = run_labels_before_contact(seg)
+    same = np.array_equal(labels.instance, seg.instance)
+    gone = gone_reasons(ops, lab, corrected=not same) if lab is not None else {}
+    if same:  # the run's own ids: exactly what the consumers read before corrections existed
+        return StepZeroLabels(labels, np.asarray(pre, np.int32), None, gone)
+    geom = corrected_geometry_labels(seg, labels.instance, len(seg.points), pre)
+    return StepZeroLabels(labels, geom, run_share(labels.instance, seg, labels.num_ids), gone)

@@ -40,7 +40,7 @@ from clutt3r_core.errors import Clutt3rError, SceneError, SceneFileError
 
 __all__ = ["SceneAfter", "ChainInputs", "build_scene_after", "chain_inputs", "scene_after", "chain_length",
            "compose_motions", "resolve_step", "update_docs", "added_masks", "post_camera", "post_cameras",
-           "oriented_normals", "ADDED_NORMAL_KNN"]
+           "post_eyes", "oriented_normals", "ADDED_NORMAL_KNN"]
 
 ADDED_NORMAL_KNN = 16
 """ours: neighbours of the PCA normals of added instances (the viewer's Grasps tab uses the same)."""
@@ -346,6 +346,31 @@ def post_cameras(run_dir: str | Path, step: int, docs: list[tuple[Path, dict]] |
     cams = ((int(doc["frame"]), post_camera(path, doc)) for path, doc in
             (update_docs(run_dir, step) if docs is None else docs))
     return {f: c for f, c in cams if c is not None}
+
+
+def post_eyes(run_dir: str | Path, step: int, scene: str | Path | None = None) -> dict:
+    """{frame: camera centre (3,) world metres} of the post views of the first ``step`` updates that
+    added an instance, to orient the added instances' normals (``oriented_normals``): the camera its
+    ``update.json`` records (since session 8), else the scene folder's view of that frame (``scene``,
+    else the one the run records; updates written before, ~0.2 s to load it); a frame with neither is
+    left out (+z). ``clutt3r query`` and ``clutt3r grasp`` both read it, so an added instance has
+    one set of normals whichever asks."""
+    docs = update_docs(run_dir, step)
+    frames = {f for _, f, _ in added_masks(run_dir, step, docs)}
+    eyes = {f: c.T_world_camera[:3, 3] for f, c in post_cameras(run_dir, step, docs).items() if f in frames}
+    if frames - set(eyes):
+        try:
+            from clutt3r_core.io import load_scene
+            from clutt3r_core.runs import run_scene_folder
+
+            folder = Path(scene) if scene is not None else run_scene_folder(run_dir)
+            if folder is not None:
+                for v in load_scene(folder, load_gt=False).views:
+                    if v.frame in frames and v.frame not in eyes:
+                        eyes[v.frame] = v.camera.T_world_camera[:3, 3]
+        except Clutt3rError:
+            pass  # no scene folder: +z (oriented_normals says so)
+    return eyes
 
 
 def build_scene_after(inp: ChainInputs) -> SceneAfter:

@@ -231,26 +231,11 @@ def _geometry_labels(seg, n: int) -> np.ndarray:
 
 
 def _corrected_geometry_labels(seg, corrected: np.ndarray, n: int) -> np.ndarray:
-    """(n,) int32: the corrected labels of the run's first n points, with the points the contact rule
-    cleared (labelled before it, unlabelled in the run and left unlabelled by the corrections) given
-    the corrected id of the nearest point of their own pre-contact instance that has one. A merge
-    carries them to the merged id, a split to the nearer part; a deleted instance keeps them
-    unlabelled (none of its points has an id). Without this a correction brought the contact's
-    labels back into the update's geometry (``_geometry_labels``: the moved clamp read static)."""
-    out = np.array(corrected[:n], np.int32)
-    pre = np.asarray(_geometry_labels(seg, n))
-    cleared = (pre >= 0) & (np.asarray(seg.instance[:n]) < 0) & (out < 0)
-    if not cleared.any():
-        return out
-    from scipy.spatial import cKDTree
+    """``run_labels.corrected_geometry_labels`` (moved there in session 9: the grasp target at step 0
+    reads the same mapping, ``run_labels.StepZeroLabels.geometry``)."""
+    from clutt3r_core.update.run_labels import corrected_geometry_labels
 
-    pts = np.asarray(seg.points[:n])
-    for k in np.unique(pre[cleared]):
-        src = np.flatnonzero((pre == k) & (out >= 0))
-        if len(src):
-            dst = np.flatnonzero(cleared & (pre == k))
-            out[dst] = out[src[cKDTree(pts[src]).query(pts[dst])[1]]]
-    return out
+    return corrected_geometry_labels(seg, corrected, n)
 
 
 def state_from_run(run_dir: str | Path) -> SceneState:
