@@ -11,6 +11,11 @@ instances (which are not in the run's cloud: a second cloud); it is a view of th
 ``update.scene_after.SceneAfter``, built by the core's ``build_scene_after`` from the chain the
 viewer loaded, so every tab shows the scene ``clutt3r query`` / ``clutt3r grasp --step`` see.
 ``chain_steps`` summarises each update for the timeline. Pure functions over ``ViewerData``; no viser.
+
+At step 0 the Query and Grasps tabs read the core's ``update.run_labels.step_zero_labels`` of the
+Edit tab's live labels (``step_zero_of``): the ids the Edit tab shows, a merged instance's grasp
+target the union of its parts' points before the contact rule, as ``clutt3r query`` / ``clutt3r
+grasp`` read the correction log.
 """
 
 from __future__ import annotations
@@ -20,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["ShownScene", "shown_scene", "scene_after_of", "chain_inputs_of", "scene_step", "StepSummary", "chain_steps",
-           "scene_grasp_request"]
+           "scene_grasp_request", "step_zero_of"]
 
 
 _CACHED_SCENES = 8
@@ -220,3 +225,26 @@ def scene_grasp_request(data, step: int, k: int):
     from clutt3r_core.runs import run_voxel_size
 
     return scene_after_of(data, step).grasp_request(k, voxel_size=run_voxel_size(data.seg))
+
+
+def step_zero_of(data, annotations):
+    """The core's ``update.run_labels.StepZeroLabels`` of the run at step 0 with the Edit tab's edits
+    as they are now (``annotations``: the app's ``Annotations``, its ``current`` labels; None: the
+    run's own ids), what the Query and Grasps tabs rank and plan on before any update. Cached on
+    ``data`` for one labelling: every edit (or undo) makes a new ``current`` object, so the next call
+    after an edit recomputes, never a stale copy. The labels before the contact rule are computed
+    once per run (``refine.run_labels_before_contact``)."""
+    from clutt3r_core.update.run_labels import step_zero_labels
+
+    pre = data._cache.get("pre_contact")
+    if pre is None:
+        from clutt3r_core.segmentation.refine import run_labels_before_contact
+
+        pre = data._cache["pre_contact"] = np.asarray(run_labels_before_contact(data.seg))
+    cur = getattr(annotations, "current", None)
+    hit = data._cache.get("step_zero")
+    if hit is not None and hit[0] is cur:
+        return hit[1]
+    z = step_zero_labels(data.seg, annotations=annotations if cur is not None else None, pre=pre)
+    data._cache["step_zero"] = (cur, z)  # holds ``cur``: its id is never reused while cached
+    return z

@@ -1,7 +1,10 @@
 """The Grasps tab: plan grasps for a picked instance, draw the top N, inspect and export one.
 
 Target: the instance dropdown, the tree node selected in the Tree tab (its instance), or the
-best instance of the last text query ("Use query target"). "Plan grasps" runs the default
+best instance of the last text query ("Use query target"). Before any update the ids are the Edit
+tab's, as they are now (``scene_step.step_zero_of``: a merged instance is planned on the union of
+its parts' points before the contact rule, a deleted or merged id is no target and the tab says
+why), as ``clutt3r grasp`` reads the correction log. "Plan grasps" runs the default
 ``grasp_planner`` (``clutt3r_core.grasping``) on the run's fused cloud with the run's depth
 views (unseen-space check). The top N grippers are drawn as outlines at their widths,
 coloured by score; the selected one is drawn with the gripper mesh, its closing region
@@ -99,12 +102,13 @@ class GraspsPanel(Panel):
         self._grasps = s.app.data.grasps
         self._target = -1 if self._grasps is None or not len(self._grasps) else int(self._grasps.instance[0])
         self._step: int | None = None  # updates applied to the scene planned in (None: unknown / no updates)
+        self._corrections: dict | None = None  # the correction log state a step-0 plan's ids came from
         if self._grasps is not None:
             self.summary.content = f"{len(self._grasps)} grasps from the run's grasps.npz"
             self._draw(s)
 
     def refresh(self, s: "Session", change: Change) -> None:
-        if change & Change.SCENE:
+        if change & (Change.SCENE | Change.LABELS):  # an edit changes the ids at step 0
             opts = self._options(s)
             if tuple(opts) != tuple(self.target.options):
                 keep = option_id(self.target.value)
@@ -122,8 +126,15 @@ class GraspsPanel(Panel):
         """The instances of the scene shown, with their point counts there (added ones included)."""
         seg = s.app.data.seg
         if s.scene_step() == 0:
+            from clutt3r_viewer.scene_step import step_zero_of
+
+            z = step_zero_of(s.app.data, getattr(s.app, "annotations", None))
+            if z.corrected:  # the Edit tab's ids now (deleted and merged ones are no target)
+                inst = z.labels.instance
+                counts = np.bincount(inst[inst >= 0], minlength=z.labels.num_ids)
+                return [f"I{k} ({int(counts[k])} pts)" for k in z.labels.ids.tolist()] or ["none"]
             counts = np.bincount(seg.instance[seg.instance >= 0], minlength=seg.num_instances)
-            return [f"I{k} ({int(counts[k])} pts)" for k in range(seg.num_instances)] or ["none"]
+            return [f"I{k} ({int(counts[k])} pts)" for k in range(seg.num_instances) if k not in z.gone] or ["none"]
         from clutt3r_viewer.scene_step import shown_scene
 
         sc = shown_scene(s.app.data, s.scene_step(), np.arange(len(seg.points)))
@@ -161,20 +172,29 @@ class GraspsPanel(Panel):
                     return
                 req = scene_grasp_request(d, step, k)
                 views = ()
-            else:
-                if not 0 <= k < d.seg.num_instances:
-                    s.notify("Grasps", "pick a target instance")
+            else:  # the Edit tab's ids as they are now, as `clutt3r grasp` reads the correction log
+                from clutt3r_core.errors import SceneError
+                from clutt3r_viewer.scene_step import step_zero_of
+
+                z = step_zero_of(d, getattr(s.app, "annotations", None))
+                try:
+                    z.check_target(k)
+                except SceneError as e:
+                    s.notify("Grasps", f"{e}; pick a target instance")
                     return
                 views = tuple(DepthView(v.camera, v.depth) for v in d.views if v.depth is not None)
-                req = request_from_segmentation(d.seg, k, views)
+                req = request_from_segmentation(d.seg, k, views, labels=z)
             gs = create_backend("grasp_planner").plan(req)
             self._grasps, self._target = gs.top(int(self.top.value)), k
             self._step = step if d.updates else None  # recorded as clutt3r grasp records it
+            self._corrections = z.to_json() if step == 0 else None
+            self._target_points = int(req.target.sum())
             note = gs.message or ("" if views else
                                   f"after update {step}: cloud-only collision checks (the initial views no longer "
                                   "show this scene)" if step > 0 else "no depth views: cloud-only collision checks")
             self.summary.content = (f"**{len(self._grasps)}** grasps for I{k}" if len(self._grasps) else
-                                    f"no grasp for I{k}") + (f"  \n_{note}_" if note else "")
+                                    f"no grasp for I{k}") + f" ({self._target_points} target points)" \
+                + (f"  \n_{note}_" if note else "")
             self._draw(s)
 
     def _draw(self, s: "Session") -> None:
@@ -224,6 +244,6 @@ class GraspsPanel(Panel):
         if run_dir is None or self._grasps is None:
             s.notify("Grasps", "nothing to export (plan first) or no run folder (read-only view)")
             return
-        self._grasps.save_json(run_dir / "grasps.json", self._target, step=self._step)
+        self._grasps.save_json(run_dir / "grasps.json", self._target, step=self._step, corrections=self._corrections)
         self._grasps.save_npz(run_dir / "grasps.npz")
         s.notify("Grasps", f"wrote {run_dir / 'grasps.json'} and grasps.npz")

@@ -12,6 +12,12 @@ Two sources of scores:
 
 Both set ``state.query_scores`` (the ``query`` colour layer: a heat map over instances) and
 ``state.query_best`` (highlighted; the Grasps tab can take it as its target).
+
+Before any update the instances ranked are the Edit tab's as they are now
+(``scene_step.step_zero_of``, the core's ``update.run_labels.step_zero_labels``): deleted and merged
+ids are not ranked, a merged instance is ranked once with its parts' evidence mixed by size
+(``query.corrected_evidence``), as ``clutt3r query`` ranks the run's correction log; an edit
+ranks the last query again.
 """
 
 from __future__ import annotations
@@ -136,9 +142,9 @@ class QueryPanel(Panel):
         self.result = gui.add_markdown(f"_text embedder: `{name}`_")
 
     def refresh(self, s: "Session", change: Change) -> None:
-        # another scene shown (an update chosen): rank the instances of that scene again, off the
-        # session's lock (run_query takes it and broadcasts its own change)
-        if change & Change.SCENE and s.state.query:
+        # another scene shown (an update chosen) or an edit (the ids at step 0): rank the instances
+        # of that scene again, off the session's lock (run_query takes it and broadcasts its own change)
+        if change & (Change.SCENE | Change.LABELS) and s.state.query:
             threading.Thread(target=self.run_query, args=(s, s.state.query, False), daemon=True).start()
 
     # -- the language backend -----------------------------------------------------------------
@@ -174,6 +180,20 @@ class QueryPanel(Panel):
             s.app._run_query_added = out
             return out[1], out[2]
 
+    def _step_zero_query_object(self, s: "Session", rq):
+        """``rq`` on the Edit tab's labelling now (``RunQuery.with_labelling`` of
+        ``scene_step.step_zero_of``), kept for one labelling (an edit makes a new one)."""
+        from clutt3r_viewer.scene_step import step_zero_of
+
+        z = step_zero_of(s.app.data, getattr(s.app, "annotations", None))
+        with _RQ_LOCK:
+            hit = getattr(s.app, "_run_query_step0", None)
+            if hit is not None and hit[0] is rq and hit[1] is z:
+                return hit[2]
+            out = rq.with_labelling(z)
+            s.app._run_query_step0 = (rq, z, out)
+            return out
+
     def _language_scores(self, s: "Session", text: str):
         rq = self._run_query_object(s)
         scored: frozenset[int] = frozenset()
@@ -183,8 +203,8 @@ class QueryPanel(Panel):
             sc = s.scene()
             ids = [k for k in sc.present.tolist() if k not in sc.added_in or k in scored]
             res = rq.query_among(text, ids, step, f"scene after update {step}", int(sc.present.max(initial=-1)) + 1)
-        else:
-            res = rq.query(text)
+        else:  # the Edit tab's ids now (rq itself when the edits change no label)
+            res = self._step_zero_query_object(s, rq).query(text)
         scores, note = _in_scene(s, res.scores.astype(np.float32), None, scored)
         lines = [f"**{text}** → I{res.target} "
                  + ("(confident)" if res.confident else "(_not confident: nothing matches clearly_)"),
@@ -200,6 +220,16 @@ class QueryPanel(Panel):
     def _cosine_scores(self, s: "Session", text: str):
         emb = s.app.text_embedder.embed_text([text])[0]
         scores = s.app.data.instance_text_scores(emb)
+        if s.scene_step() == 0:  # the Edit tab's ids now: each mixes its run instances' scores by size
+            from clutt3r_viewer.scene_step import step_zero_of
+
+            z = step_zero_of(s.app.data, getattr(s.app, "annotations", None))
+            if z.corrected:
+                mixed = np.full(z.labels.num_ids, np.nan, np.float32)
+                ids = z.labels.ids
+                mixed[ids] = (z.share[ids] @ scores.astype(np.float64)).astype(np.float32)
+                mixed[ids[z.share[ids].sum(axis=1) == 0]] = np.nan  # rim points only: no evidence
+                scores = mixed
         scores, note = _in_scene(s, scores, emb)
         ranked = np.flatnonzero(np.isfinite(scores))
         if len(ranked) == 0:
