@@ -20,7 +20,8 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -334,27 +335,27 @@ class StepZeroLabels:
         labels: the run's labelling after its correction log (``RunLabels``: the Edit tab's ids; the
             run's own when there is no log or its edits change nothing). ``labels.instance`` is what
             the Edit tab shows (the contact rule's labels); the query's target points read it.
-        geometry: (N,) int32 over the run's whole cloud: the labels before the contact rule
-            (``refine.run_labels_before_contact``) in the same ids, as the update's geometry reads
-            them (``corrected_geometry_labels``); the grasp target of id k is ``geometry == k``
-            (a merged id: the union of its parts' pre-contact points).
         share: (num_ids, run instances) float64 ``run_share`` when the ids are corrected (to carry
             per-run-instance evidence to them, ``query.corrected_evidence``), None when they are
             the run's own (no log, or edits that change no label).
         gone: {id: reason} for ids that are no target (deleted, merged, emptied), ``gone_reasons``.
+        seg: the run's ``pipeline.Segmentation`` (``geometry`` is computed from it when first read).
+        pre: ``refine.run_labels_before_contact(seg)`` when already computed (the viewer keeps it).
+
+    ``geometry`` ((N,) int32, computed once when first read: a query never pays for it): the labels
+    before the contact rule in the same ids over the run's whole cloud, as the update's geometry
+    reads them (``corrected_geometry_labels``); the grasp target of id k is ``geometry == k`` (a
+    merged id: the union of its parts' pre-contact points). With the run's own ids it is
+    ``run_labels_before_contact(seg)`` exactly (what the grasp target always was).
     """
 
     labels: RunLabels
-    geometry: np.ndarray
     share: np.ndarray | None = None
     gone: dict = None  # type: ignore[assignment]
+    seg: object = field(default=None, repr=False)
+    pre: np.ndarray | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
-        g = np.ascontiguousarray(np.asarray(self.geometry, np.int32))
-        if g.shape != self.labels.instance.shape:
-            raise SceneError(f"StepZeroLabels: geometry {g.shape} and labels {self.labels.instance.shape} must agree")
-        g.setflags(write=False)
-        object.__setattr__(self, "geometry", g)
         from types import MappingProxyType
 
         object.__setattr__(self, "gone", MappingProxyType(dict(self.gone or {})))
@@ -364,6 +365,24 @@ class StepZeroLabels:
                 raise SceneError(f"StepZeroLabels: share must be ({self.labels.num_ids}, K), got {s.shape}")
             s.setflags(write=False)
             object.__setattr__(self, "share", s)
+        if self.seg is None and self.pre is None:
+            raise SceneError("StepZeroLabels: give the run's segmentation or its labels before the contact rule")
+
+    @cached_property
+    def geometry(self) -> np.ndarray:
+        pre = self.pre
+        if pre is None:
+            from clutt3r_core.segmentation.refine import run_labels_before_contact
+
+            pre = run_labels_before_contact(self.seg)
+        if self.corrected:
+            g = corrected_geometry_labels(self.seg, self.labels.instance, len(self.labels.instance), pre)
+        else:
+            g = np.array(pre, np.int32)
+        if g.shape != self.labels.instance.shape:
+            raise SceneError(f"StepZeroLabels: geometry {g.shape} and labels {self.labels.instance.shape} must agree")
+        g.setflags(write=False)
+        return g
 
     @property
     def corrected(self) -> bool:
@@ -410,8 +429,6 @@ def step_zero_labels(seg, run_dir: str | Path | None = None, annotations=None,
     Neither, or no log: the run's own labels. The ids stay the run's (``share`` None) when the edits
     change no label; ``geometry`` is then ``refine.run_labels_before_contact(seg)`` exactly (what the
     grasp target always was). ``pre``: that array when already computed."""
-    from clutt3r_core.segmentation.refine import run_labels_before_contact
-
     if annotations is None and run_dir is not None and (Path(run_dir) / LOG_NAME).is_file():
         annotations = _open_log(Path(run_dir), seg)
     lab, ops = None, ()
@@ -428,11 +445,7 @@ def step_zero_labels(seg, run_dir: str | Path | None = None, annotations=None,
         inst = np.asarray(seg.instance, np.int32)
         ids = np.unique(inst[inst >= 0]).astype(np.int32)
         labels = RunLabels(inst, ids, int(seg.num_instances), LabelSource(0, 0, labels_sha256(inst)))
-    if pre is None:
-        pre = run_labels_before_contact(seg)
     same = np.array_equal(labels.instance, seg.instance)
     gone = gone_reasons(ops, lab, corrected=not same) if lab is not None else {}
-    if same:  # the run's own ids: exactly what the consumers read before corrections existed
-        return StepZeroLabels(labels, np.asarray(pre, np.int32), None, gone)
-    geom = corrected_geometry_labels(seg, labels.instance, len(seg.points), pre)
-    return StepZeroLabels(labels, geom, run_share(labels.instance, seg, labels.num_ids), gone)
+    share = None if same else run_share(labels.instance, seg, labels.num_ids)  # same: the run's own ids
+    return StepZeroLabels(labels, share, gone, seg, pre)
