@@ -224,3 +224,43 @@ def test_query_command_json_names_the_log_and_skips_merged_ids(run, base, capsys
     with np.load(run / "query_target.npz") as z:
         k = int(z["instance"])
         assert len(z["points"]) == int((np.where(seg.instance == b, a, seg.instance) == k).sum())
+
+
+# -- the mapping, as a property ----------------------------------------------------------------
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(2, 6), st.integers(0, 10_000), st.booleans())
+def test_merged_geometry_is_the_union_of_the_parts_pre_contact_points(k, seed, delete_one):
+    """For any labelling whose contact rule cleared some points (each instance keeps one), merging
+    ids into another gives each id the pre-contact points of the ids now in it, and a deleted id
+    none: ``corrected_geometry_labels`` is the pre-contact labels mapped through the edits."""
+    from types import SimpleNamespace
+
+    from clutt3r_core.corrections import BaseLabels, apply
+    from clutt3r_core.update.run_labels import corrected_geometry_labels
+
+    rng = np.random.default_rng(seed)
+    n = 80
+    pre = rng.integers(-1, k, n).astype(np.int32)
+    pre[:k] = np.arange(k)  # every id has points
+    run = np.where((rng.random(n) < 0.35) & (np.arange(n) >= k), -1, pre).astype(np.int32)  # the contact's
+    seg = SimpleNamespace(points=rng.random((n, 3)).astype(np.float32), instance=run)
+    ids = rng.permutation(k)
+    into, merged = int(ids[0]), tuple(int(x) for x in ids[1:1 + rng.integers(1, k)])
+    ops = [Merge(into=into, other=merged[0], others=merged[1:])]
+    rest = [int(x) for x in ids if int(x) != into and int(x) not in merged]
+    gone = rest[0] if delete_one and rest else None
+    if gone is not None:
+        ops.append(Delete(gone))
+    lab = apply(BaseLabels(run, np.ones(k, np.float32), np.arange(n, dtype=np.int32)), ops)
+    geom = corrected_geometry_labels(seg, lab.instance, n, pre)
+    lut = np.arange(k)
+    lut[list(merged)] = into
+    want = np.where(pre >= 0, lut[np.maximum(pre, 0)], -1)
+    if gone is not None:
+        want[pre == gone] = -1
+    np.testing.assert_array_equal(geom, want)
