@@ -15,8 +15,8 @@ the target's points are where the object is now. The JSON object and the npz the
 At step 0 (no updates, or ``--step 0``) the ids are those of the run's correction log (the Edit
 tab's: ``update.run_labels.step_zero_labels``): deleted and merged ids are not ranked, a merged
 instance is ranked once with its parts' evidence, and the target's points are its corrected
-points. The output names the log state ("the run as segmented, with its corrections (correction
-log entry 3 (3 edit(s) in effect))"); the JSON then has ``step`` 0, ``scene`` and
+points. The output names the log state ("the run as segmented with its corrections (log entry 3, 3 edit(s)
+in effect)"); the JSON then has ``step`` 0, ``scene`` and
 ``corrections`` (entries, edits in effect, SHA-256 of the labels). A run whose log changes no
 label is queried exactly as without one.
 The first query on a run embeds its masks (progress bar) and caches them in

@@ -410,11 +410,13 @@ class StepZeroLabels:
         return self.geometry == int(k)
 
     def describe(self) -> str:
-        """"the run as segmented" or "the run as segmented, with its corrections (correction log entry 5 (3
-        edit(s) in effect))" (what the commands print)."""
-        if not self.source.entries:
+        """"the run as segmented" or "the run as segmented with its corrections (log entry 5, 3 edit(s) in
+        effect)" (what the commands print)."""
+        src = self.source
+        if not src.entries:
             return "the run as segmented"
-        return f"the run as segmented, with its corrections ({self.source.describe()})"
+        return (f"the run as segmented with its corrections (log entry {src.entries}, "
+                f"{src.active_edits} edit(s) in effect)")
 
     def to_json(self) -> dict | None:
         """``LabelSource.to_json`` of the labelling (what grasps.json records), None without a log."""
