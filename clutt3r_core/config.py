@@ -243,6 +243,8 @@ ADDED_AFTER_V1: dict[str, Any] = {
     "pointcloud.surface_rim_neighbours": 0,
     "pointcloud.surface_rim_attach_k": 0,
     "pointcloud.surface_rim_attach_distance": 0.02,
+    "pointcloud.surface_rim_moved": 0,
+    "pointcloud.surface_rim_reach": 0.0,
     "unvoted.min_points": 0,
 }
 """Fields added after trace version 1, each with the value that reproduces the code that wrote

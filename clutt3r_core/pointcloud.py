@@ -11,7 +11,7 @@ projecting anything again.
 Voxel order is the sorted order of the integer voxel keys, so it does not depend on the
 order of the views; voxel means do not either (up to float round-off).
 
-(About 615 lines, on purpose: the config, the cloud type and the fusion share these invariants
+(About 640 lines, on purpose: the config, the cloud type and the fusion share these invariants
 and are read together; the surface estimate and the rim voxels live in ``surface.py`` and ``rim.py``.)
 """
 
@@ -100,6 +100,23 @@ class PointCloudConfig:
     kept as a *rim* voxel when this many of its 26 neighbours are kept; 0 = never (ours, issue 13;
     ``clutt3r_core.rim``; measured in docs/benchmark/strict-iou.md, third pass)."""
 
+    surface_rim_moved: int = 0
+    """With ``surface="tsdf"`` and ``surface_rim_neighbours`` on: a voxel holding a single *moved*
+    point that came from a voxel of one raw point (the ``surface_min_points`` rule drops it) is kept
+    as a rim voxel too when this many of its 26 neighbours are kept; 0 = never (ours, session 9).
+    Off: measured on the tuning scenes (docs/benchmark/strict-iou.md, "Session 9: the holes"), 1 / 3
+    neighbours: mean AP 53.7 -> 51.9 / 52.4 (5 of 6 scenes lower), holes -15 but off-GT cells +22 per
+    scene; these voxels are single-view samples (none of those in hole cells has a second view
+    within 2.5 mm), as often beside the surface as on it."""
+
+    surface_rim_reach: float = 0.0
+    """With ``surface="tsdf"`` and ``surface_rim_neighbours`` on: a voxel whose only point the estimate
+    could not move and that has no kept neighbour is kept as a rim voxel too when a kept voxel's key
+    lies within this distance (metres, between voxel keys); 0 = never (ours, session 9).
+    Off: measured on the tuning scenes (docs/benchmark/strict-iou.md, "Session 9: the holes"),
+    10 / 15 mm: mean AP 53.5 -> 53.3 / 53.2 (holes -2 / -10 per scene, off-GT +1 / +2; hard_0002:
+    24 hole cells filled, 20 with the right object, AP unchanged; easy_0003 -1.6)."""
+
     surface_rim_attach_k: int = 6
     """Rim voxels are kept apart (``FusedCloud.rim``) and take the majority label of this many nearest
     segmented voxels after the vote (``rim.attach_labels``); 0 = they join the cloud before segmentation
@@ -130,6 +147,10 @@ class PointCloudConfig:
         if self.surface_rim_attach_k < 0 or not self.surface_rim_attach_distance >= 0:
             raise SceneError("PointCloudConfig.surface_rim_attach_k and surface_rim_attach_distance must be >= 0, "
                              f"got {self.surface_rim_attach_k}, {self.surface_rim_attach_distance}")
+        if not self.surface_rim_reach >= 0:
+            raise SceneError(f"PointCloudConfig.surface_rim_reach must be >= 0, got {self.surface_rim_reach}")
+        if self.surface_rim_moved < 0:
+            raise SceneError(f"PointCloudConfig.surface_rim_moved must be >= 0, got {self.surface_rim_moved}")
         if self.surface_min_points < 1:
             raise SceneError(f"PointCloudConfig.surface_min_points must be >= 1, got {self.surface_min_points}")
         if self.normal_knn < 3:

@@ -36,14 +36,17 @@ This module estimates the surface across views first, KinectFusion-style (Newcom
    leave sparse samples and the field no usable gradient, were the largest share of the GT object
    cells without a fused point. The fusion keeps rim voxels apart (``FusedCloud.rim``): segmented
    with the cloud they cost hard AP50, labelled after the vote by their neighbours they do not
-   (``PointCloudConfig.surface_rim_attach_k``, docs/benchmark/strict-iou.md).
+   (``PointCloudConfig.surface_rim_attach_k``, docs/benchmark/strict-iou.md). Two wider rim rules,
+   off by default (measured no gain, session 9): lone *moved* points next to kept voxels
+   (``surface_rim_moved``) and lone unmoved points with a kept voxel within a reach
+   (``surface_rim_reach``).
 
 Whether to run it at all is decided from the data (``PointCloudConfig.surface = "auto"``, ours'
 default): ``depth_agreement.depth_disagreement`` measures how much the views disagree about the surface, and the
 estimate runs from ``PointCloudConfig.surface_auto_sigma`` (1 mm) on; ``surface_points`` is the
 fusion's hook and returns a ``SurfaceChoice`` with what was measured and done.
 
-(About 550 lines, on purpose: the field, the snap and the keep rule above are one algorithm
+(About 590 lines, on purpose: the field, the snap and the keep rule above are one algorithm
 whose steps share the candidate-voxel tables; split apart they would pass those tables around.)
 
 Free-space carving (dropping voxels that other views see through) was tried and measured no
@@ -420,7 +423,9 @@ def _snap_and_filter(views, P, C, pix_list, offsets, strides, cfg, params):
     pixels (``pix_list[v]``: flat pixel indices of view v) and ``offsets`` (V + 1,), less the points
     of voxels that fail the occupancy rule: a voxel of the moved points is kept when it holds
     ``cfg.surface_min_points`` of them or one trusted point (``SnappedPoints.trusted``), or a single
-    point that could not be moved and ``cfg.surface_rim_neighbours`` kept neighbours (a *rim* voxel).
+    point that could not be moved and ``cfg.surface_rim_neighbours`` kept neighbours (a *rim* voxel;
+    also, when switched on, a single moved point with ``cfg.surface_rim_moved`` kept neighbours, and
+    a single unmoved point with a kept voxel within ``cfg.surface_rim_reach``).
     Every kept point's voxel is then kept by the fusion (``min_points`` 1 there). Last: the move
     noise, the (P',) bool rim flag of each kept point (None without rim voxels) and the (P',) int32
     voxel of each kept point, the voxels numbered in the fusion's order (ascending packed key; None
@@ -447,8 +452,18 @@ def _snap_and_filter(views, P, C, pix_list, offsets, strides, cfg, params):
     if cfg.surface_rim_neighbours > 0:
         # a lone point the estimate could not move (a rim: depth edge, grazing view) next to kept voxels
         lone = np.flatnonzero(~kept & (counts == 1))
-        lone = lone[np.bincount(inverse[sn.moved], minlength=len(counts))[lone] == 0]
-        rim_vox = lone[_kept_neighbours(keys, ext, inverse, kept, lone) >= cfg.surface_rim_neighbours]
+        lone_moved = np.bincount(inverse[sn.moved], minlength=len(counts))[lone] > 0
+        unmoved = lone[~lone_moved]
+        nk = _kept_neighbours(keys, ext, inverse, kept, unmoved)
+        rim_vox = unmoved[nk >= cfg.surface_rim_neighbours]
+        if cfg.surface_rim_reach > 0:
+            # a lone unmoved point with no kept neighbour but a kept voxel within the reach
+            rim_vox = np.union1d(rim_vox, _near_kept(keys, inverse, kept, unmoved[nk == 0],
+                                                     cfg.surface_rim_reach / cfg.voxel_size))
+        if cfg.surface_rim_moved > 0:
+            # a lone moved point from a voxel of one raw point (the count rule drops it) next to kept voxels
+            mv = lone[lone_moved]
+            rim_vox = np.union1d(rim_vox, mv[_kept_neighbours(keys, ext, inverse, kept, mv) >= cfg.surface_rim_moved])
         kept[rim_vox] = True
         if len(rim_vox):
             rim = np.zeros(len(counts), bool)
@@ -464,6 +479,20 @@ def _snap_and_filter(views, P, C, pix_list, offsets, strides, cfg, params):
     if keep.all():
         return sn.points, C, pix_list, offsets, sn.move_noise, rim, vox
     return (*_keep_points(sn.points, C, pix_list, offsets, keep), sn.move_noise, rim, vox)
+
+
+def _near_kept(keys, inverse, kept, cand, reach):
+    """The voxels ``cand`` (ascending voxel numbers) with a ``kept`` voxel whose key lies within
+    ``reach`` voxel edges (euclidean) of theirs; ``keys``, ``inverse`` as ``_kept_neighbours``."""
+    if len(cand) == 0 or not kept.any():
+        return cand[:0]
+    from clutt3r_core.normals import knn_query, knn_tree
+
+    one = np.empty(len(kept), np.intp)
+    one[inverse] = np.arange(len(inverse))
+    vk = np.stack([k[one] for k in keys], axis=1).astype(np.float64)
+    d2 = knn_query(knn_tree(np.ascontiguousarray(vk[kept])), np.ascontiguousarray(vk[cand]), 1)[0].reshape(-1)
+    return cand[d2 <= float(reach) ** 2 + 1e-9]
 
 
 def _kept_neighbours(keys, ext, inverse, kept, cand):

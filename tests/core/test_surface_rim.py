@@ -119,3 +119,64 @@ def test_clean_depth_has_no_rim():
     views = make_views(3, 320, 240, 400.0)
     cloud = fuse_views(views, PointCloudConfig())
     assert cloud.surface.method == "voxel-mean" and cloud.rim is None and cloud.surface.rim == 0
+
+
+# ---- session 9 (the holes): two wider rim rules, off by default (docs/benchmark/strict-iou.md)
+
+
+@pytest.mark.parametrize("extra", [{"surface_rim_moved": 1}, {"surface_rim_reach": 0.015}])
+def test_wider_rim_rules_add_rim_voxels_only(extra):
+    """``surface_rim_moved`` / ``surface_rim_reach`` add rim voxels (each one point) and change
+    nothing else: the segmented cloud is the default's, the default's rim voxels stay; a lone
+    moved voxel added borders a cloud voxel, a voxel added by the reach has a cloud voxel within
+    the reach and none among its 26 neighbours."""
+    views = _noisy(make_views(3, 320, 240, 400.0), 0.003)
+    base = fuse_views(views, PointCloudConfig(surface="tsdf"))
+    more = fuse_views(views, PointCloudConfig(surface="tsdf", **extra))
+    for f in ("points", "colors", "normals", "counts", "visibility", "neighbours"):
+        np.testing.assert_array_equal(getattr(more, f), getattr(base, f), err_msg=f)
+    vs = base.voxel_size
+    kb = {tuple(k) for k in np.floor(base.rim.points / vs).astype(np.int64)}
+    km = {tuple(k) for k in np.floor(more.rim.points / vs).astype(np.int64)}
+    assert kb < km and more.rim.num == len(km) == more.surface.rim
+    assert (more.rim.counts == 1).all()
+    added = np.array(sorted(km - kb))
+    cloud = np.floor(base.points / vs).astype(np.int64)
+    cheb = np.abs(added[:, None, :] - cloud[None, :, :]).max(axis=2).min(axis=1)
+    if "surface_rim_moved" in extra:
+        assert (cheb == 1).all()
+    else:
+        euc = np.sqrt(((added[:, None, :] - cloud[None, :, :]) ** 2).sum(axis=2)).min(axis=1)
+        assert (cheb >= 2).all() and (euc <= 0.015 / vs + 1e-9).all()
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(1, 80), st.floats(0.0, 1.0), st.floats(0.0, 4.0))
+def test_near_kept_against_brute_force(seed, n, frac, reach):
+    """``_near_kept``: the candidates with a kept voxel key within ``reach`` voxel edges."""
+    from clutt3r_core.surface import _near_kept
+
+    rng = np.random.default_rng(seed)
+    P = (rng.integers(0, 8, (n, 3)) * 0.005 + rng.uniform(0, 0.005, (n, 3))).astype(np.float32)
+    keys, _, ext = _voxel_keys(P, 0.005, pad=1)
+    inverse, counts = _group_keys(keys, ext)
+    u = len(counts)
+    kept = rng.random(u) < frac
+    cand = np.flatnonzero(~kept)
+    got = _near_kept(keys, inverse, kept, cand, reach)
+    vk = np.zeros((u, 3), np.int64)
+    vk[inverse] = np.stack(keys, axis=1)
+    want = [i for i in cand if kept.any() and np.sqrt(((vk[kept] - vk[i]) ** 2).sum(axis=1)).min() <= reach + 1e-9]
+    assert got.tolist() == want
+
+
+def test_wider_rim_rules_config():
+    """Off in ours and in stored configs older than the fields; bad values refused."""
+    with pytest.raises(SceneError, match="surface_rim_moved"):
+        PointCloudConfig(surface_rim_moved=-1)
+    with pytest.raises(SceneError, match="surface_rim_reach"):
+        PointCloudConfig(surface_rim_reach=float("nan"))
+    pc = SegmentConfig().pointcloud
+    assert (pc.surface_rim_moved, pc.surface_rim_reach) == (0, 0.0)
+    assert ADDED_AFTER_V1["pointcloud.surface_rim_moved"] == 0
+    assert ADDED_AFTER_V1["pointcloud.surface_rim_reach"] == 0.0
