@@ -335,38 +335,35 @@ class StepZeroLabels:
         labels: the run's labelling after its correction log (``RunLabels``: the Edit tab's ids; the
             run's own when there is no log or its edits change nothing). ``labels.instance`` is what
             the Edit tab shows (the contact rule's labels); the query's target points read it.
-        share: (num_ids, run instances) float64 ``run_share`` when the ids are corrected (to carry
-            per-run-instance evidence to them, ``query.corrected_evidence``), None when they are
-            the run's own (no log, or edits that change no label).
+        seg: the run's ``pipeline.Segmentation``.
+        corrected: True when the ids are not the run's own (the edits change labels).
         gone: {id: reason} for ids that are no target (deleted, merged, emptied), ``gone_reasons``.
-        seg: the run's ``pipeline.Segmentation`` (``geometry`` is computed from it when first read).
         pre: ``refine.run_labels_before_contact(seg)`` when already computed (the viewer keeps it).
 
-    ``geometry`` ((N,) int32, computed once when first read: a query never pays for it): the labels
-    before the contact rule in the same ids over the run's whole cloud, as the update's geometry
-    reads them (``corrected_geometry_labels``); the grasp target of id k is ``geometry == k`` (a
-    merged id: the union of its parts' pre-contact points). With the run's own ids it is
-    ``run_labels_before_contact(seg)`` exactly (what the grasp target always was).
+    Computed once each when first read (the viewer builds one per edit; an edit must not pay for
+    them, nor a query for the geometry):
+
+    - ``geometry`` ((N,) int32): the labels before the contact rule in the same ids over the run's
+      whole cloud, as the update's geometry reads them (``corrected_geometry_labels``); the grasp
+      target of id k is ``geometry == k`` (a merged id: the union of its parts' pre-contact
+      points). With the run's own ids it is ``run_labels_before_contact(seg)`` exactly (what the
+      grasp target always was).
+    - ``share`` ((num_ids, run instances) float64, None when not ``corrected``): ``run_share``, to
+      carry per-run-instance evidence to the corrected ids (``query.corrected_evidence``).
     """
 
     labels: RunLabels
-    share: np.ndarray | None = None
+    seg: object = field(repr=False)
+    corrected: bool = False
     gone: dict = None  # type: ignore[assignment]
-    seg: object = field(default=None, repr=False)
     pre: np.ndarray | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         from types import MappingProxyType
 
         object.__setattr__(self, "gone", MappingProxyType(dict(self.gone or {})))
-        if self.share is not None:
-            s = np.asarray(self.share, np.float64)
-            if s.ndim != 2 or s.shape[0] != self.labels.num_ids:
-                raise SceneError(f"StepZeroLabels: share must be ({self.labels.num_ids}, K), got {s.shape}")
-            s.setflags(write=False)
-            object.__setattr__(self, "share", s)
-        if self.seg is None and self.pre is None:
-            raise SceneError("StepZeroLabels: give the run's segmentation or its labels before the contact rule")
+        if len(self.labels.instance) != len(self.seg.points):
+            raise SceneError(f"the corrections have {len(self.labels.instance)} points, the run {len(self.seg.points)}")
 
     @cached_property
     def geometry(self) -> np.ndarray:
@@ -379,15 +376,16 @@ class StepZeroLabels:
             g = corrected_geometry_labels(self.seg, self.labels.instance, len(self.labels.instance), pre)
         else:
             g = np.array(pre, np.int32)
-        if g.shape != self.labels.instance.shape:
-            raise SceneError(f"StepZeroLabels: geometry {g.shape} and labels {self.labels.instance.shape} must agree")
         g.setflags(write=False)
         return g
 
-    @property
-    def corrected(self) -> bool:
-        """True when the ids are not the run's own (``share`` is set)."""
-        return self.share is not None
+    @cached_property
+    def share(self) -> np.ndarray | None:
+        if not self.corrected:
+            return None
+        s = run_share(self.labels.instance, self.seg, self.labels.num_ids)
+        s.setflags(write=False)
+        return s
 
     @property
     def source(self) -> LabelSource:
@@ -440,8 +438,6 @@ def step_zero_labels(seg, run_dir: str | Path | None = None, annotations=None,
         # one edit's labels with that edit's log entries (the viewer's tabs edit live)
         with getattr(annotations, "_lock", None) or nullcontext():
             lab, ops = annotations.current, annotations.ops
-        if len(lab.instance) != len(seg.points):
-            raise SceneError(f"the corrections have {len(lab.instance)} points, the run {len(seg.points)}")
         labels = _of_corrected(lab, ops)
     else:
         inst = np.asarray(seg.instance, np.int32)
@@ -449,5 +445,4 @@ def step_zero_labels(seg, run_dir: str | Path | None = None, annotations=None,
         labels = RunLabels(inst, ids, int(seg.num_instances), LabelSource(0, 0, labels_sha256(inst)))
     same = np.array_equal(labels.instance, seg.instance)
     gone = gone_reasons(ops, lab, corrected=not same) if lab is not None else {}
-    share = None if same else run_share(labels.instance, seg, labels.num_ids)  # same: the run's own ids
-    return StepZeroLabels(labels, share, gone, seg, pre)
+    return StepZeroLabels(labels, seg, not same, gone, pre)
