@@ -14,7 +14,7 @@ object by the ground truth (nearest GT point's label against the instance's majo
     .venv/bin/python benchmarks/bench_contact_masks.py --seeds 2 3
 
 ``--picture`` (one scene) draws the filled points over the first view: kept by the test at
-``--shares``' first value green, refused red, the instance's own points in the band blue.
+``--shares``' and ``--margins``' first values green, refused red, the instance's own points in the band blue.
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ def record_contact():
     return box
 
 
-def evidence(scene, fields: dict, shares: list[float], depth_tol: float) -> tuple[dict, dict]:
+def evidence(scene, fields: dict, shares: list[float], depth_tol: float, margins: list[int]) -> tuple[dict, dict]:
     box = record_contact()
     seg = pipeline.segment(scene, with_fields(SegmentConfig(), {**FILL, **fields}), progress=False)
     p, before, res, views = box["points"], box["before"], box["untested"], box["views"]
@@ -74,9 +74,14 @@ def evidence(scene, fields: dict, shares: list[float], depth_tol: float) -> tupl
     out = dict(scene=scene.name, object_points=int((before >= 0).sum()), filled=summary(vf), own_band=summary(vo),
                own_above_40mm=summary(vh))
     keep = {}
-    for s in shares:
-        keep[s] = (vf.seen > 0) & (vf.inside >= s * vf.seen)
-        out[f"kept@{s}"] = int(keep[s].sum())
+    for m in margins:
+        vm = point_mask_votes(p[filled], lab_f, views, depth_tol, m)
+        out[f"filled_share_m{m}"] = round(float(np.nanmean(vm.share())), 3) if len(filled) else None
+        vo_m = point_mask_votes(p[own], before[own], views, depth_tol, m)
+        out[f"own_band_share_m{m}"] = round(float(np.nanmean(vo_m.share())), 3) if len(own) else None
+        for s in shares:
+            keep[s, m] = (vm.seen > 0) & (vm.inside >= s * vm.seen)
+            out[f"kept@{s},m{m}"] = int(keep[s, m].sum())
     gt = scene.ground_truth
     if gt is not None and len(filled):
         from clutt3r_core.normals import knn_query, knn_tree
@@ -91,10 +96,9 @@ def evidence(scene, fields: dict, shares: list[float], depth_tol: float) -> tupl
                 maj[k] = v[np.argmax(c)]
         right = g[filled] == maj[lab_f]
         out["filled_right_by_gt"] = int(right.sum())
-        for s in shares:
-            out[f"kept@{s}_right"] = int((keep[s] & right).sum())
-            out[f"refused@{s}_right"] = int((~keep[s] & right).sum())
-    return out, dict(seg=seg, points=p, filled=filled, keep=keep.get(shares[0]), own=own)
+        for (s, m), kk in keep.items():
+            out[f"kept@{s},m{m}_right"] = f"{int((kk & right).sum())}/{int(kk.sum())}"
+    return out, dict(seg=seg, points=p, filled=filled, keep=keep.get((shares[0], margins[0])), own=own)
 
 
 def picture(scene, d: dict, path: str) -> None:
@@ -130,6 +134,7 @@ def main() -> None:
     ap.add_argument("--difficulties", nargs="+", default=["easy", "intermediate", "hard"])
     ap.add_argument("--shares", type=float, nargs="+", default=[0.5, 0.3, 0.7])
     ap.add_argument("--depth-tol", type=float, default=0.005)
+    ap.add_argument("--margins", type=int, nargs="+", default=[0], help="pixels (the first draws the picture)")
     ap.add_argument("--variant", default="", help="FIELD=VALUE,... over the fill (JSON values)")
     ap.add_argument("--picture", default="")
     ap.add_argument("--cache", default="/tmp/bench_cache")
@@ -150,7 +155,7 @@ def main() -> None:
                 scenes.append(lambda s=s: _load_prepared(args.cache, s).scene)
     for make in scenes:
         scene = make()
-        out, d = evidence(scene, fields, args.shares, args.depth_tol)
+        out, d = evidence(scene, fields, args.shares, args.depth_tol, args.margins)
         print(json.dumps(out), flush=True)
         if args.picture:
             picture(scene, d, args.picture)

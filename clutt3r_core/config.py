@@ -236,6 +236,7 @@ ADDED_AFTER_V1: dict[str, Any] = {
     "refine.contact_max_noise": 0.005,
     "refine.contact_fill_mask_share": 0.0,
     "refine.contact_fill_mask_depth": 0.005,
+    "refine.contact_fill_mask_margin": 0,
     "grouping.duplicate_iou": 0.0,
     "pointcloud.surface": "voxel-mean",
     "pointcloud.surface_min_points": 2,

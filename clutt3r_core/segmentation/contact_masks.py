@@ -121,20 +121,26 @@ class PointMaskVotes:
             return np.where(self.seen > 0, self.inside / np.maximum(self.seen, 1), np.nan)
 
 
-def point_mask_votes(points: np.ndarray, label: np.ndarray, views: MaskViews, depth_tolerance: float) -> PointMaskVotes:
+def point_mask_votes(points: np.ndarray, label: np.ndarray, views: MaskViews, depth_tolerance: float,
+                     margin: int = 0) -> PointMaskVotes:
     """Count the views that see each point and those that put it inside its instance's masks.
 
     points: (P, 3) world metres; label: (P,) int the instance each point is tested for (in
     0..K-1; -1 or K and above: no masks, never inside); depth_tolerance: metres, how far the
     view's depth at the point's pixel (nearest pixel centre) may lie from the point's own camera
     depth for the view to see it (nearer: hidden behind something; farther: the point floats in
-    front of what the view measured)."""
+    front of what the view measured); margin: pixels, a seen point counts as inside when any pixel
+    of the (2 margin + 1)^2 square around its pixel lies in a mask of its instance (candidate
+    masks' boundaries are off by a few pixels, and an object's lowest walls project onto its
+    masks' boundary)."""
     p = np.asarray(points, np.float64).reshape(-1, 3)
     lab = np.asarray(label, np.int64).reshape(-1)
     if len(lab) != len(p):
         raise SceneError(f"point_mask_votes: {len(p)} points but {len(lab)} labels")
     if not depth_tolerance > 0:
         raise SceneError(f"point_mask_votes: depth_tolerance must be > 0 m, got {depth_tolerance}")
+    if margin < 0:
+        raise SceneError(f"point_mask_votes: margin must be >= 0 pixels, got {margin}")
     seen = np.zeros(len(p), np.int32)
     inside = np.zeros(len(p), np.int32)
     k = views.num_instances
@@ -155,5 +161,11 @@ def point_mask_votes(points: np.ndarray, label: np.ndarray, views: MaskViews, de
         seen[idx] += 1
         h = has[idx]
         idx, ui, vi = idx[h], ui[h], vi[h]
-        inside[idx] += ci[codes[vi, ui].astype(np.int64), lab[idx]]
+        hit = np.zeros(len(idx), bool)
+        for dv in range(-margin, margin + 1):
+            for du in range(-margin, margin + 1):
+                uu = np.clip(ui + du, 0, cam.width - 1)
+                vv = np.clip(vi + dv, 0, cam.height - 1)
+                hit |= ci[codes[vv, uu].astype(np.int64), lab[idx]]
+        inside[idx] += hit
     return PointMaskVotes(seen, inside)

@@ -117,6 +117,9 @@ class RefineConfig:
     contact_fill_mask_depth: float = 0.005
     """Ours (session 9), metres: how far a view's depth at a fill candidate's pixel may lie from the
     candidate's own depth for the view to see it (``contact_fill_mask_share``)."""
+    contact_fill_mask_margin: int = 0
+    """Ours (session 9), pixels: a seen fill candidate counts as inside its instance's masks when any
+    pixel within this many of its own (a square) is (``contact_fill_mask_share``)."""
 
     contact_max_noise: float = 0.005
     """Ours, metres: the rule leaves an object alone (no fill, no contact cleared) when its measured
@@ -141,6 +144,8 @@ class RefineConfig:
             raise SceneError(f"RefineConfig.contact_fill_distance must be > 0 m, got {self.contact_fill_distance}")
         if not 0.0 <= self.contact_fill_mask_share <= 1.0:
             raise SceneError(f"RefineConfig.contact_fill_mask_share must be in [0, 1], got {self.contact_fill_mask_share}")
+        if self.contact_fill_mask_margin < 0:
+            raise SceneError(f"RefineConfig.contact_fill_mask_margin must be >= 0 pixels, got {self.contact_fill_mask_margin}")
         if not self.contact_fill_mask_depth > 0.0:
             raise SceneError(f"RefineConfig.contact_fill_mask_depth must be > 0 m, got {self.contact_fill_mask_depth}")
         if not 0.0 <= self.weak_echo_ratio <= 1.0:
@@ -423,7 +428,8 @@ def contact_labels(points: np.ndarray, normals: np.ndarray, instance: np.ndarray
             take = (rel >= cfg.contact_fill_low) & (rel < cfg.contact_fill_high) & ~noisy[lab]
             if cfg.contact_fill_mask_share > 0 and take.any():
                 t = np.flatnonzero(take)
-                votes = point_mask_votes(p[un[t]], lab[t], views, cfg.contact_fill_mask_depth)
+                votes = point_mask_votes(p[un[t]], lab[t], views, cfg.contact_fill_mask_depth,
+                                         cfg.contact_fill_mask_margin)
                 ok = (votes.seen > 0) & (votes.inside >= cfg.contact_fill_mask_share * votes.seen)
                 rejected[un[t[~ok]]] = True
                 take[t[~ok]] = False
