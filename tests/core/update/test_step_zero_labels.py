@@ -264,3 +264,28 @@ def test_merged_geometry_is_the_union_of_the_parts_pre_contact_points(k, seed, d
     if gone is not None:
         want[pre == gone] = -1
     np.testing.assert_array_equal(geom, want)
+
+
+def test_step_zero_of_an_updated_run_reads_the_corrections_now(run, base):
+    """``--step 0`` on a run with updates: the Edit tab's ids as they are now (a delete made after
+    the update, which makes the chain stale, is already in step 0), while the chain keeps its own."""
+    from clutt3r_core.grasping.request import request_from_run
+    from clutt3r_core.query import RunQuery
+    from clutt3r_core.update.state import apply_update, save_state, state_from_run
+    from tests.core.query._fake import FakeGrounder
+    from tests.viewer.test_update_sources import _fake_update
+
+    _, seg, pre = base
+    a, b, c = _roles(seg, pre)
+    _edit(run, seg, Merge(into=a, other=b))
+    s0 = state_from_run(run)
+    r1 = _fake_update(s0, 8, k=a, shift=0.05, removed=None, n_iter=3)
+    save_state(apply_update(s0, r1), run / "updates" / "01_frame_000008", r1)
+    _edit(run, seg, Delete(c))  # after the update
+    r0 = RunQuery.open(run, grounder=FakeGrounder(), step=0).query("red thing")
+    assert b not in r0.ranking and c not in r0.ranking and a in r0.ranking and r0.step == 0
+    with pytest.raises(SceneError, match=f"I{c} was deleted"):
+        request_from_run(run, c, step=0)
+    np.testing.assert_array_equal(request_from_run(run, a, step=0)[0].target, np.isin(pre, [a, b]))
+    r1q = RunQuery.open(run, grounder=FakeGrounder(), step=1).query("red thing")
+    assert c in r1q.ranking and b not in r1q.ranking  # the chain's labelling (stale: said by the commands)
