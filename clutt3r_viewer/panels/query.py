@@ -93,6 +93,40 @@ def _in_scene(s: "Session", scores: np.ndarray, text_embedding: np.ndarray | Non
     return out, note
 
 
+def _carried_scores(s: "Session", scores: np.ndarray) -> np.ndarray:
+    """Per-run-instance ``scores`` (the run's own embedder's cosines) on the ids of the scene shown:
+    at step 0 the Edit tab's now (``scene_step.step_zero_of``), after updates the labelling the
+    chain was computed from (``chain_inputs_of``); each id mixes its run instances' scores by its
+    points' share (``update.run_labels.run_share``, as the language path mixes the evidence), NaN for
+    ids that are deleted, merged or have no fused point. The run's own ids: ``scores`` as they are."""
+    data = s.app.data
+    if s.scene_step() == 0:
+        from clutt3r_viewer.scene_step import step_zero_of
+
+        z = step_zero_of(data, getattr(s.app, "annotations", None))
+        if not z.corrected:
+            return scores
+        share, ids = z.share, z.labels.ids
+    else:
+        hit = data._cache.get("chain_share")
+        if hit is None:  # once per chain (36 ms at 1M points)
+            from clutt3r_core.update.run_labels import run_share
+            from clutt3r_viewer.scene_step import chain_inputs_of
+
+            chain = chain_inputs_of(data, len(data.updates))
+            same = np.array_equal(chain.instance, data.seg.instance)
+            hit = data._cache["chain_share"] = (None, None) if same else (
+                run_share(chain.instance, data.seg, chain.num_ids), chain.ids)
+        share, ids = hit
+        if share is None:
+            return scores
+    out = np.full(share.shape[0], np.nan, np.float32)
+    rows = share[ids]
+    out[ids] = (rows @ np.asarray(scores, np.float64)).astype(np.float32)
+    out[ids[rows.sum(axis=1) == 0]] = np.nan  # rim points only: no evidence
+    return out
+
+
 def added_instance_evidence(rq, data) -> tuple[object, frozenset[int]]:
     """``rq.instances`` (the run's ``InstanceEvidence``) on the ids of the update chain of ``data``,
     as ``clutt3r query --step`` carries it: rows mixed by point share when the chain was computed
@@ -219,17 +253,7 @@ class QueryPanel(Panel):
 
     def _cosine_scores(self, s: "Session", text: str):
         emb = s.app.text_embedder.embed_text([text])[0]
-        scores = s.app.data.instance_text_scores(emb)
-        if s.scene_step() == 0:  # the Edit tab's ids now: each mixes its run instances' scores by size
-            from clutt3r_viewer.scene_step import step_zero_of
-
-            z = step_zero_of(s.app.data, getattr(s.app, "annotations", None))
-            if z.corrected:
-                mixed = np.full(z.labels.num_ids, np.nan, np.float32)
-                ids = z.labels.ids
-                mixed[ids] = (z.share[ids] @ scores.astype(np.float64)).astype(np.float32)
-                mixed[ids[z.share[ids].sum(axis=1) == 0]] = np.nan  # rim points only: no evidence
-                scores = mixed
+        scores = _carried_scores(s, s.app.data.instance_text_scores(emb))
         scores, note = _in_scene(s, scores, emb)
         ranked = np.flatnonzero(np.isfinite(scores))
         if len(ranked) == 0:

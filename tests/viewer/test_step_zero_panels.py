@@ -103,3 +103,51 @@ def test_query_tab_ranks_the_edit_tabs_ids_at_step_zero(tiny_data, ann, monkeypa
     ann.undo()
     panel.run_query(s, "the red thing")
     np.testing.assert_allclose(state.query_scores, before)  # the run's own ids again, same scores
+
+
+def test_the_run_embedders_scores_follow_the_edits_and_the_corrected_chain(tiny_data, tiny_seg, ann, tmp_path):
+    """The shared-space path (the run's own text embedder): per-run-instance cosines are carried to the
+    Edit tab's ids at step 0 and to a corrected chain's ids after an update (a split-off id is ranked
+    there; before, it had no score), each id mixing its parts' by size."""
+    from clutt3r_core.annotations import Split
+    from clutt3r_core.update.run_labels import run_share
+    from clutt3r_core.update.state import apply_update, save_state, state_from_run
+    from clutt3r_viewer.loading import load_viewer_data
+    from tests.viewer.conftest import FakeTextEmbedder
+    from tests.viewer.test_update_sources import _fake_update
+
+    seg = tiny_seg
+    a, b = _pair(seg)
+    step = {"now": 0}
+    state = SimpleNamespace(query="", query_best=-1, query_scores=None, color_mode="instance")
+    s = SimpleNamespace(app=SimpleNamespace(text_embedder=FakeTextEmbedder(), data=tiny_data, annotations=ann),
+                        lock=threading.Lock(), state=state, changed=lambda c: None, scene_step=lambda: step["now"])
+    panel = qp.QueryPanel()
+    panel.result = SimpleNamespace(content="")
+    raw = tiny_data.instance_text_scores(FakeTextEmbedder().embed_text(["red"])[0])
+    ann.apply_op(Merge(into=a, other=b))
+    panel.run_query(s, "red")
+    share = run_share(ann.current.instance, seg, ann.current.num_instances)
+    assert np.isnan(state.query_scores[b])
+    np.testing.assert_allclose(state.query_scores[a], share[a] @ raw, rtol=1e-5)
+
+    # a split, then an update computed from that labelling: the split-off id is ranked after it
+    big = int(np.argmax(np.bincount(seg.instance[seg.instance >= 0])))
+    pts = np.flatnonzero(ann.current.instance == big)
+    ann.apply_op(Split(points=tuple(pts[: len(pts) // 2].tolist()), source=big))
+    k = ann.current.num_instances - 1
+    run = ann.run_dir
+    s0 = state_from_run(run)
+    r1 = _fake_update(s0, 8, k=a, shift=0.05, removed=None, n_iter=3)
+    save_state(apply_update(s0, r1), run / "updates" / "01_frame_000008", r1)
+    d = load_viewer_data(run, images=False)
+    from clutt3r_viewer.scene_step import shown_scene
+
+    step["now"] = 1
+    s.app.data = d
+    s.scene = lambda: shown_scene(d, 1, np.arange(len(seg.points)))
+    panel.run_query(s, "red")
+    sc = state.query_scores
+    assert np.isfinite(sc[k]) and np.isfinite(sc[a]) and np.isnan(sc[b]), panel.result.content
+    share = run_share(ann.current.instance, seg, ann.current.num_instances)
+    np.testing.assert_allclose(sc[k], share[k] @ raw, rtol=1e-5)
