@@ -129,6 +129,21 @@ def test_the_test_only_removes_fill_points(seed, s1, s2, tol, contact):
     assert not (b.filled & ~a.filled).any()  # a higher share keeps fewer
 
 
+@settings(max_examples=15, deadline=None)
+@given(st.integers(0, 10_000), st.floats(0.001, 0.02))
+def test_a_margin_only_adds_inside_views(seed, tol):
+    p, _, _, _, cams = box_scene()
+    rng = np.random.default_rng(seed)
+    views = views_of(p, rng.random(len(p)) < 0.3, cams)
+    lab = rng.integers(-1, 2, len(p))  # 1: an instance without masks
+    votes = [point_mask_votes(p, lab, views, tol, m) for m in (0, 1, 2)]
+    for a, b in zip(votes, votes[1:]):
+        assert np.array_equal(a.seen, b.seen) and (a.inside <= b.inside).all()
+    assert not votes[-1].inside[lab != 0].any()
+    with pytest.raises(SceneError, match="margin"):
+        point_mask_votes(p, lab, views, tol, -1)
+
+
 def test_config_checks_and_old_traces():
     from clutt3r_core.config import ADDED_AFTER_V1, PRESETS
 
@@ -136,6 +151,8 @@ def test_config_checks_and_old_traces():
         RefineConfig(contact_fill_mask_share=1.5)
     with pytest.raises(SceneError, match="contact_fill_mask_depth"):
         RefineConfig(contact_fill_mask_depth=0.0)
+    with pytest.raises(SceneError, match="contact_fill_mask_margin"):
+        RefineConfig(contact_fill_mask_margin=-1)
     assert PRESETS["default"].refine.contact_fill_mask_share == 0.0
     assert ADDED_AFTER_V1["refine.contact_fill_mask_share"] == 0.0  # old traces: no test
 
