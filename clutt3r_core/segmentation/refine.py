@@ -66,7 +66,14 @@ class RefineConfig:
     Measured with RealSense-like depth, AP (0.50:0.95) on held-out seeds 0-1: +10.2 / +1.7 easy,
     +3.8 / +2.8 intermediate, +1.9 / +1.7 hard, AP@25 and AP@50 unchanged; chosen on seeds 2-3
     (0.2: +6.8 / +4.4 easy, +4.9 / +4.4 intermediate, +0.2 / +2.4 hard; 0.3 gained less on 5 of 6:
-    it also drops true surface)."""
+    it also drops true surface). Those gains were on the plain voxel-mean fusion. Session 9, on top of
+    the default since then (surface estimate, rim attach, contact; ``benchmarks/bench_weak_echo.py``,
+    one process): tuning seeds 2-3 mean AP 53.50 -> 53.52 / 53.35 / 52.03 (0.05 / 0.1 / 0.2; one scene
+    -2.7 at each; 0.3: 53.70 -> 50.78), check seeds 0-1 55.05 -> 56.13 / 56.18 (0.1 / 0.2), seeds 4-5
+    56.37 -> 55.17 / 53.20, AP25 / AP50 unchanged: no gain where settings are chosen, so still off
+    whatever the grasp planner reads. On the estimated surface the flanks are thinner and
+    the rule clears 1 true-surface cell for every 2-4 off-GT cells (voxel-mean fusion: 1 for 7-21).
+    docs/benchmark/strict-iou.md, "Session 9: weak echoes revisited"."""
     contact_height: float = 0.002
     """Ours (issue 13 part 2), metres; 0 = off (the paper preset). After the vote and the rim
     attach, an object point less than this above its object's support level (the table or tray
