@@ -101,7 +101,9 @@ def chain_inputs_of(data, step: int):
     """The core's ``ChainInputs`` of the scene after the first ``step`` updates of ``data.updates``
     (the chain the viewer loaded): the run's cloud in the chain's labelling (``chain_instance``),
     each update's record (``HistoryEntry.of_result``), the added instances as the state after
-    ``step`` updates holds them (``UpdateFrame.added_now``), the post views' camera centres."""
+    ``step`` updates holds them (``UpdateFrame.added_now``), the post views' camera centres, and
+    the chain's labels before the contact rule (the core's ``chain_geometry``, as ``clutt3r grasp
+    --step`` reads them: the points an update moved or removed with their instance, the grasp target)."""
     from clutt3r_core.update.scene_after import ChainInputs
     from clutt3r_core.update.state import HistoryEntry
     from clutt3r_viewer.panels.update_sources import chain_instance
@@ -116,12 +118,34 @@ def chain_inputs_of(data, step: int):
                  else HistoryEntry(j + 1, int(u.frame), (), (), np.zeros((0, 4, 4))) for j, u in enumerate(ups))
     now = ups[-1].added_now if ups else ()
     cat = lambda xs, shape, dt: np.concatenate(xs) if xs else np.zeros(shape, dt)  # noqa: E731
+    geo = _chain_geometry(data, inst)
     return ChainInputs(
         points=seg.points, colors=seg.colors, normals=seg.normals, instance=inst, ids=ids, num_ids=n_ids,
         history=hist, n_updates=len(data.updates), added_points=cat([a.points for a in now], (0, 3), np.float32),
         added_colors=cat([a.colors for a in now], (0, 3), np.uint8),
         added_instance=cat([np.full(len(a.points), a.instance, np.int32) for a in now], 0, np.int32),
-        eyes={u.frame: u.camera.T_world_camera[:3, 3] for u in ups if u.camera is not None})
+        eyes={u.frame: u.camera.T_world_camera[:3, 3] for u in ups if u.camera is not None},
+        geometry=None if np.array_equal(geo, inst) else geo)
+
+
+def _pre_contact(data) -> np.ndarray:
+    """``refine.run_labels_before_contact(data.seg)``, computed once per run."""
+    pre = data._cache.get("pre_contact")
+    if pre is None:
+        from clutt3r_core.segmentation.refine import run_labels_before_contact
+
+        pre = data._cache["pre_contact"] = np.asarray(run_labels_before_contact(data.seg))
+    return pre
+
+
+def _chain_geometry(data, inst: np.ndarray) -> np.ndarray:
+    """The core's ``chain_geometry`` of the labelling ``inst``, once per labelling (the chain's, the run's)."""
+    from clutt3r_core.update.scene_after import chain_geometry
+
+    hit = data._cache.get("chain_geometry")
+    if hit is None or not (hit[0] is inst or np.array_equal(hit[0], inst)):
+        hit = data._cache["chain_geometry"] = (inst, chain_geometry(data.seg, inst, _pre_contact(data)))
+    return hit[1]
 
 
 def scene_after_of(data, step: int):
@@ -220,7 +244,7 @@ def chain_steps(data) -> tuple[StepSummary, ...]:
 def scene_grasp_request(data, step: int, k: int):
     """A ``GraspRequest`` for instance ``k`` of the scene after ``step`` updates: the core's
     ``SceneAfter.grasp_request`` (``scene_after_of``), so the Grasps tab plans what ``clutt3r grasp``
-    plans. No depth views: the initial views no longer show the updated scene (a cloud-only
+    plans (the target: ``k``'s points before the contact rule, ``SceneAfter.grasp_target``). No depth views: the initial views no longer show the updated scene (a cloud-only
     collision check; the Grasps tab says so). ``SceneError`` when ``k`` is not in that scene."""
     from clutt3r_core.runs import run_voxel_size
 
@@ -236,11 +260,7 @@ def step_zero_of(data, annotations):
     once per run (``refine.run_labels_before_contact``)."""
     from clutt3r_core.update.run_labels import step_zero_labels
 
-    pre = data._cache.get("pre_contact")
-    if pre is None:
-        from clutt3r_core.segmentation.refine import run_labels_before_contact
-
-        pre = data._cache["pre_contact"] = np.asarray(run_labels_before_contact(data.seg))
+    pre = _pre_contact(data)
     cur = getattr(annotations, "current", None)
     hit = data._cache.get("step_zero")
     if hit is not None and hit[0] is cur:

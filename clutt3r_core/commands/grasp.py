@@ -15,6 +15,11 @@ At step 0 the ids are those of the run's correction log (the viewer's Edit tab;
 error (a merged one names the id it joined), the target is the corrected instance's points before
 the contact rule (a merge: the union of its parts'), and ``grasps.json`` records the log state in
 ``"corrections"`` (absent for a run without a log: the file is what it always was).
+
+After updates the same holds for the chain (session 9): the target is the instance's points before
+the contact rule in the scene after the updates (``SceneAfter.grasp_target``: those the update's
+state moved with it), and ``"corrections"`` records the log state the chain was computed from
+(its ``state.json`` "labels"; absent when it was computed from the run as segmented).
 """
 
 from __future__ import annotations
@@ -103,7 +108,7 @@ def grasp_command(
     step = resolve_step(run, step)  # a bad --step: one clear error before anything loads
     seg = load_run(run)
     notes: list[str] = []
-    corrections = None  # the correction log state a step-0 target's ids came from (grasps.json "corrections")
+    corrections = None  # the correction log state the target's ids came from (grasps.json "corrections")
     if query:
         instance, note = _target_from_query(run, query, scene, step)
         if note:
@@ -111,6 +116,7 @@ def grasp_command(
     if step > 0:
         sa = scene_now(run, step, seg, scene)
         req = sa.grasp_request(instance, voxel_size=run_voxel_size(seg))  # a removed instance: names its update
+        corrections = sa.corrections  # the log state the chain's ids came from (stale or not)
         if sa.stale:  # corrections made after the updates: their ids are the older labelling's
             notes.append(sa.stale)
         console.print(f"{sa.label}: collision check against the updated cloud (the initial depth views no longer "

@@ -86,8 +86,9 @@ def request_from_run(run_dir: str | Path, instance: int, scene: str | Path | Non
 
     When the run has updates (``RUN/updates``), the request is in the scene after ``step`` of them
     (None: the latest; 0: the run as segmented; ``scene_now``), as ``clutt3r grasp`` plans: a
-    removed instance is a ``SceneError`` naming the update, the cloud is the updated one and there
-    are no depth views (the initial views no longer show the scene). At step 0 the ids are those of
+    removed instance is a ``SceneError`` naming the update, the cloud is the updated one, the target
+    the instance's points before the contact rule there (``SceneAfter.grasp_target``, as at step 0),
+    and there are no depth views (the initial views no longer show the scene). At step 0 the ids are those of
     the run's correction log (``update.run_labels.step_zero_labels``: the Edit tab's ids; a deleted
     or merged id is a ``SceneError`` saying so)."""
     from clutt3r_core.runs import load_run, run_voxel_size

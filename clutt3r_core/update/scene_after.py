@@ -21,6 +21,16 @@ computed from (``state.json`` "labels": the Edit tab's corrections replayed to t
 ``update.run_labels``), so the ids agree with update.json; ``stale`` says when corrections made
 since then are not in it.
 
+Two labellings of the run's points (session 9): ``instance`` is the chain's labelling as the Edit
+tab shows it (after the object-support contact rule, ``refine.contact_labels``: on noisy depth
+each object's lowest ~2 mm unlabelled); ``geometry`` is the same ids BEFORE that rule
+(``chain_geometry``), what the update's state holds (``state._geometry_labels``). Every
+consumer of an object's whole extent reads ``geometry``: which points an update moves with their
+instance and leaves out with a removed one (as the state moved and dropped them), and the grasp
+target (``SceneAfter.grasp_request``, as at step 0: ``run_labels.StepZeroLabels.geometry``).
+Before, the target after an update lost its lowest millimetres (98 points on sample_seq4) and
+a displaced object's contact points stayed where it was (a ghost strip in the collision cloud).
+
 ``compose_motions`` is the one place motions of a chain compose (``pose_new = T_world @
 pose_old``).
 """
@@ -38,8 +48,8 @@ import numpy as np
 
 from clutt3r_core.errors import Clutt3rError, SceneError, SceneFileError
 
-__all__ = ["SceneAfter", "ChainInputs", "build_scene_after", "chain_inputs", "scene_after", "chain_length",
-           "compose_motions", "resolve_step", "update_docs", "added_masks", "post_camera", "post_cameras",
+__all__ = ["SceneAfter", "ChainInputs", "build_scene_after", "chain_inputs", "scene_after", "chain_length", "chain_geometry",
+           "compose_motions", "resolve_step", "update_docs", "added_masks", "post_camera", "post_cameras", "corrections_record",
            "post_eyes", "oriented_normals", "ADDED_NORMAL_KNN"]
 
 ADDED_NORMAL_KNN = 16
@@ -82,6 +92,47 @@ def oriented_normals(points: np.ndarray, eye: np.ndarray | None, knn: int = ADDE
     return n
 
 
+def corrections_record(source) -> dict | None:
+    """What grasps.json records as "corrections" of a chain's ``run_labels.LabelSource`` (None: not
+    recorded): ``source.to_json()``, or None when it has no log entries (the run as segmented), as
+    ``StepZeroLabels.to_json`` at step 0."""
+    return source.to_json() if source is not None and source.entries else None
+
+
+def chain_geometry(seg, instance: np.ndarray | None = None, pre: np.ndarray | None = None,
+                   corrected: bool | None = None) -> np.ndarray:
+    """(N,) int32 the labels before the contact rule of a run's whole cloud (rim voxels included)
+    in the ids of a chain's labelling ``instance`` ((N,) int, None: the run's own), the geometry
+    its update state holds (``state.state_from_segmentation``) and its scenes move, remove and
+    grasp by (``ChainInputs.geometry``). The one function ``chain_inputs`` and the viewer's
+    ``scene_step.chain_inputs_of`` call.
+
+    The run's own ids: ``refine.run_labels_before_contact(seg)`` (``pre``: it, when already
+    computed). Corrected ids: ``run_labels.corrected_geometry_labels``, the fused points mapped as
+    the state's step 0 maps them (over the fused points only: ``run_labels.fused_count``), the rim
+    voxels, which the state does not hold, as the grasp target at step 0 maps them (over the whole
+    cloud). ``corrected``: whether the state was built from a corrected labelling (its "labels"
+    record has log entries); None: when ``instance`` differs from the run's labels."""
+    from clutt3r_core.update.run_labels import corrected_geometry_labels, fused_count
+
+    if pre is None:
+        from clutt3r_core.segmentation.refine import run_labels_before_contact
+
+        pre = run_labels_before_contact(seg)
+    inst = np.asarray(seg.instance if instance is None else instance, np.int32)
+    if len(inst) != len(seg.points) or len(pre) != len(seg.points):
+        raise SceneError(f"chain_geometry: labels of {len(inst)} / {len(pre)} points for a run of {len(seg.points)}")
+    if corrected is None:
+        corrected = not np.array_equal(inst, seg.instance)
+    if not corrected:
+        return np.array(pre, np.int32)
+    n_all, n = len(inst), fused_count(seg)
+    out = corrected_geometry_labels(seg, inst, n_all, pre)
+    if n < n_all:  # a cleared fused point goes where the state put it (its nearest fused source)
+        out[:n] = corrected_geometry_labels(seg, inst, n, pre)
+    return out
+
+
 @dataclass(frozen=True, eq=False)
 class ChainInputs:
     """What the scene after a chain's first ``len(history)`` updates is built from
@@ -107,6 +158,13 @@ class ChainInputs:
         run, stale, run_share: carried into ``SceneAfter`` as they are (the viewer leaves
             run_share None: no tab reads it from the scene; its Query tab mixes the evidence
             once per chain, ``clutt3r_viewer.panels.query.added_instance_evidence``).
+        geometry: (N,) int32 the same ids before the contact rule (``chain_geometry``; the update
+            state's labels of these points): the points each update moved and removed with their
+            instance, and the grasp target's. None: ``instance`` (a run without the rule, and
+            chains whose state holds other labels, ``chain_inputs``).
+        source: the labelling the chain was computed from (``state.json`` "labels",
+            ``run_labels.LabelSource``; None: not recorded, and in the viewer's scenes), carried
+            into ``SceneAfter``.
     """
 
     points: np.ndarray
@@ -124,12 +182,15 @@ class ChainInputs:
     run: Path | None = None
     stale: str | None = None
     run_share: np.ndarray | None = None
+    geometry: np.ndarray | None = None
+    source: object | None = None
 
     def __post_init__(self) -> None:
         n, a = len(self.points), len(self.added_points)
         if np.shape(self.points) != (n, 3) or np.shape(self.colors) != (n, 3) or np.shape(self.normals) != (n, 3) \
-                or np.shape(self.instance) != (n,):
-            raise SceneError("ChainInputs: points, colors, normals (N, 3) and instance (N,) must agree")
+                or np.shape(self.instance) != (n,) or np.shape(self.instance if self.geometry is None
+                                                             else self.geometry) != (n,):
+            raise SceneError("ChainInputs: points, colors, normals (N, 3), instance and geometry (N,) must agree")
         if np.shape(self.added_points) != (a, 3) or np.shape(self.added_colors) != (a, 3) \
                 or np.shape(self.added_instance) != (a,):
             raise SceneError("ChainInputs: added_points, added_colors (A, 3) and added_instance (A,) must agree")
@@ -139,6 +200,8 @@ class ChainInputs:
                          ("instance", np.int32), ("ids", np.int32), ("added_points", np.float32),
                          ("added_colors", np.uint8), ("added_instance", np.int32)):
             object.__setattr__(self, name, _ro(getattr(self, name), dt))
+        # None: the same array object as ``instance`` (``build_scene_after`` then skips the second labelling)
+        object.__setattr__(self, "geometry", self.instance if self.geometry is None else _ro(self.geometry, np.int32))
         object.__setattr__(self, "history", tuple(self.history))
         object.__setattr__(self, "eyes", MappingProxyType({int(f): np.asarray(e, np.float64)
                                                            for f, e in dict(self.eyes).items()}))
@@ -160,9 +223,10 @@ class SceneAfter:
             their composed motions, removed ones where they were last seen.
         run_colors: (N, 3) uint8.
         run_normals: (N, 3) float32 unit, turned with their instance.
-        run_instance: (N,) int32 the chain's id of each run point (the chain's labelling; a
-            removed instance's points keep its id: they are ``gone``), -1 = none.
-        gone: (N,) bool run points of instances removed by ``step``.
+        run_instance: (N,) int32 the chain's id of each run point (the chain's labelling, as the
+            Edit tab shows it; a removed instance's points keep its id: they are ``gone``), -1 = none.
+        gone: (N,) bool run points of instances removed by ``step`` (by ``run_geometry``: the
+            removed instance's contact points go with it, as the update's state dropped them).
         added_points: (A, 3) float32 world metres, the added instances' points now.
         added_colors: (A, 3) uint8.
         added_normals: (A, 3) float32 unit PCA normals, oriented towards the camera of the
@@ -182,6 +246,10 @@ class SceneAfter:
             an id made only of background points), to carry per-run-instance evidence (query)
             to the corrected ids; None when the ids are the run's (and in the viewer's scenes,
             ``ChainInputs``).
+        run_geometry: (N,) int32 the chain's ids before the contact rule (``ChainInputs.geometry``):
+            ``run_points`` moved and ``gone`` by it; None: ``run_instance``.
+        source: the labelling the chain was computed from (``run_labels.LabelSource``, state.json
+            "labels"), None when not recorded; ``corrections`` is what grasps.json records of it.
     """
 
     step: int
@@ -204,9 +272,13 @@ class SceneAfter:
     run: Path | None = None
     stale: str | None = None
     run_share: np.ndarray | None = None
+    run_geometry: np.ndarray | None = None
+    source: object | None = None
 
     def __post_init__(self) -> None:
         n, a = len(self.run_points), len(self.added_points)
+        if self.run_geometry is not None and np.shape(self.run_geometry) != (n,):
+            raise SceneError("SceneAfter: run_geometry must be (N,) as run_points")
         if any(np.shape(getattr(self, x)) != (n, 3) for x in ("run_points", "run_colors", "run_normals")) \
                 or np.shape(self.run_instance) != (n,) or np.shape(self.gone) != (n,):
             raise SceneError("SceneAfter: run_points, run_colors, run_normals (N, 3), run_instance and gone (N,) "
@@ -222,6 +294,8 @@ class SceneAfter:
                          ("added_colors", np.uint8), ("added_normals", np.float32), ("added_instance", np.int32),
                          ("present", np.int32), ("motions", np.float64)):
             object.__setattr__(self, name, _ro(getattr(self, name), dt))
+        object.__setattr__(self, "run_geometry", self.run_instance if self.run_geometry is None
+                           else _ro(self.run_geometry, np.int32))
         object.__setattr__(self, "removed", MappingProxyType(dict(self.removed)))
         object.__setattr__(self, "added", MappingProxyType(dict(self.added)))
 
@@ -252,6 +326,19 @@ class SceneAfter:
         """(P,) int32 instance id of each point of ``points``, -1 = none."""
         return self._scene(self.run_instance, self.added_instance)
 
+    @cached_property
+    def geometry(self) -> np.ndarray:
+        """(P,) int32 instance id of each point of ``points`` before the contact rule (``run_geometry``,
+        then the added instances' ids), -1 = none: an object's whole extent (the grasp target)."""
+        return self._scene(self.run_geometry, self.added_instance)
+
+    @property
+    def corrections(self) -> dict | None:
+        """``LabelSource.to_json`` of the correction log state the chain's ids came from (what
+        grasps.json records as "corrections", as at step 0: ``StepZeroLabels.to_json``); None when
+        the chain was computed from the run as segmented (no log entries) or does not record it."""
+        return corrections_record(self.source)
+
     @property
     def label(self) -> str:
         """"the run as segmented" or "scene after update 2 (frame 9)" (what the commands print)."""
@@ -277,13 +364,20 @@ class SceneAfter:
         sel = self.instance == int(k)
         return self.points[sel], self.colors[sel]
 
+    def grasp_target(self, k: int) -> np.ndarray:
+        """(P,) bool the grasp target of instance ``k`` over ``points``: its points before the contact
+        rule (``geometry``), as at step 0 (``run_labels.StepZeroLabels.target``); the planner must not
+        count the target's own lowest millimetres as foreign (docs/benchmark/strict-iou.md, session 8)."""
+        self.check_present(k)
+        return self.geometry == int(k)
+
     def grasp_request(self, k: int, views=(), voxel_size: float = 0.005):
-        """The ``GraspRequest`` for instance ``k``: the whole scene cloud as it is now. At step > 0
-        pass no ``views``: the initial depth views no longer show the scene (cloud-only check)."""
+        """The ``GraspRequest`` for instance ``k``: the whole scene cloud as it is now, the target its
+        points before the contact rule (``grasp_target``). At step > 0 pass no ``views``: the
+        initial depth views no longer show the scene (cloud-only check)."""
         from clutt3r_core.grasping import GraspRequest
 
-        self.check_present(k)
-        return GraspRequest(points=self.points, normals=self.normals, target=self.instance == int(k),
+        return GraspRequest(points=self.points, normals=self.normals, target=self.grasp_target(k),
                             instance=int(k), views=tuple(views), voxel_size=float(voxel_size))
 
 
@@ -384,13 +478,23 @@ def build_scene_after(inp: ChainInputs) -> SceneAfter:
     added_at = {k: (h.step, h.frame) for h in hist for k in h.added}
     n_ids = max(int(inp.num_ids), 1 + max(added_at, default=-1))
     M = compose_motions([zip(h.displaced, h.T_world) for h in hist], n_ids)[step]
-    inst0 = inp.instance
-    gone = np.isin(inst0, list(removed)) & (inst0 >= 0)
+    inst0, geo = inp.instance, inp.geometry
+    same = geo is inst0  # ChainInputs without geometry: one labelling
+    # the points an update moved and dropped with an instance are those the state holds for it:
+    # its labels before the contact rule (``chain_geometry``), its lowest millimetres included
+    gone = np.isin(geo, list(removed)) & (geo >= 0)
     pts, nrm = inp.points.astype(np.float64), inp.normals.astype(np.float64)
-    for k in np.flatnonzero(np.any(M[:inp.num_ids] != np.eye(4), axis=(1, 2))):
-        sel = inst0 == k
+    moved_ids = np.flatnonzero(np.any(M[:inp.num_ids] != np.eye(4), axis=(1, 2)))
+    for k in moved_ids:
+        sel = geo == k
         pts[sel] = pts[sel] @ M[k, :3, :3].T + M[k, :3, 3]
         nrm[sel] = nrm[sel] @ M[k, :3, :3].T
+    if not same:
+        # a point the contact rule gave an instance that its geometry does not (the fill, off by
+        # default) stayed in place when that instance moved or left: it is no part of it there
+        left = np.isin(inst0, np.concatenate([moved_ids, list(removed)]).astype(np.int64)) & (inst0 != geo) & ~gone
+        if left.any():
+            inst0 = np.where(left, -1, inst0)
     added = {k: v for k, v in added_at.items() if k not in removed}
     P, C, N, I = [], [], [], []
     for k in sorted(added):
@@ -411,7 +515,7 @@ def build_scene_after(inp: ChainInputs) -> SceneAfter:
     return SceneAfter(step, inp.n_updates, hist[-1].frame if hist else None, pts, inp.colors, nrm,
                       inst0, gone, cat(P, (0, 3), np.float32), cat(C, (0, 3), np.uint8),
                       cat(N, (0, 3), np.float32), cat(I, 0, np.int32), present, removed, added, tuple(moved), M,
-                      inp.run, inp.stale, inp.run_share)
+                      inp.run, inp.stale, inp.run_share, None if same else geo, inp.source)
 
 
 def chain_inputs(run_dir: str | Path, step: int | None = None, seg=None,
@@ -430,12 +534,16 @@ def chain_inputs(run_dir: str | Path, step: int | None = None, seg=None,
         from clutt3r_core.runs import load_run
 
         seg = load_run(run_dir)
+    from clutt3r_core.segmentation.refine import run_labels_before_contact
+
     dirs = state_dirs(run_dir)
     step = resolve_step(run_dir, step)
     base = dict(points=seg.points, colors=seg.colors, normals=seg.normals, n_updates=len(dirs),
                 eyes=eyes or {}, run=run_dir)
+    pre = run_labels_before_contact(seg)  # ~30 ms CPU at 120k points (sample_seq4)
     if step == 0:
-        return ChainInputs(instance=seg.instance, ids=np.arange(seg.num_instances), num_ids=seg.num_instances, **base)
+        return ChainInputs(instance=seg.instance, ids=np.arange(seg.num_instances), num_ids=seg.num_instances,
+                           geometry=_distinct(pre, seg.instance), **base)
     st = load_state(dirs[step - 1])
     hist = st.history[:step]
     if len(hist) != step:
@@ -444,7 +552,8 @@ def chain_inputs(run_dir: str | Path, step: int | None = None, seg=None,
 
     stale, share = None, None
     inst0, n_run, ids0 = seg.instance, seg.num_instances, np.arange(seg.num_instances)
-    if st.labels is not None and st.labels.entries > 0:
+    corrected = st.labels is not None and st.labels.entries > 0  # as the state's step 0 was built
+    if corrected:
         lab = run_labels(run_dir, seg, entries=st.labels.entries)  # the labelling the chain was computed from
         if lab.source.labels_sha256 != st.labels.labels_sha256:
             raise SceneFileError(run_dir / LOG_NAME,
@@ -456,9 +565,31 @@ def chain_inputs(run_dir: str | Path, step: int | None = None, seg=None,
         stale = stale_note(run_dir, seg)
     # the state holds the added instances still present, moved by the later updates
     sel = np.isin(st.instance, [k for h in hist for k in h.added])
+    geo = chain_geometry(seg, inst0, pre, corrected)
+    if not _state_holds(geo, st.instance[~sel], seg, [k for h in hist for k in h.removed]):
+        # a chain computed by an older version (its state reads the contact rule's labels, or an
+        # earlier recompute of the labels before it): its scene is the one it always was
+        geo = None
     return ChainInputs(instance=inst0, ids=ids0, num_ids=n_run, history=hist, added_points=st.points[sel],
                        added_colors=st.colors[sel], added_instance=st.instance[sel], stale=stale, run_share=share,
-                       **base)
+                       geometry=None if geo is None else _distinct(geo, inst0), source=st.labels, **base)
+
+
+def _distinct(geo: np.ndarray, inst: np.ndarray) -> np.ndarray | None:
+    """``geo``, or None when it equals ``inst`` (clean depth, the paper preset: one labelling)."""
+    return None if np.array_equal(geo, inst) else geo
+
+
+def _state_holds(geo: np.ndarray, rows: np.ndarray, seg, removed) -> bool:
+    """Whether a saved state's run rows (``rows``: its labels less the added instances', in order)
+    are the run's fused points labelled ``geo`` less the removed instances' (``state.apply_update``
+    keeps the order and drops by these labels): the state's own geometry, exactly. An O(N) check
+    that the labels recomputed here are the ones the chain moved and removed."""
+    from clutt3r_core.update.run_labels import fused_count
+
+    g = geo[:fused_count(seg)]
+    kept = g[~(np.isin(g, list(removed)) & (g >= 0))]
+    return np.array_equal(kept, rows)
 
 
 def scene_after(run_dir: str | Path, step: int | None = None, seg=None,

@@ -187,7 +187,7 @@ class GraspsPanel(Panel):
             gs = create_backend("grasp_planner").plan(req)
             self._grasps, self._target = gs.top(int(self.top.value)), k
             self._step = step if d.updates else None  # recorded as clutt3r grasp records it
-            self._corrections = z.to_json() if step == 0 else None
+            self._corrections = z.to_json() if step == 0 else self._chain_corrections(s)
             self._target_points = int(req.target.sum())
             note = gs.message or ("" if views else
                                   f"after update {step}: cloud-only collision checks (the initial views no longer "
@@ -196,6 +196,17 @@ class GraspsPanel(Panel):
                                     f"no grasp for I{k}") + f" ({self._target_points} target points)" \
                 + (f"  \n_{note}_" if note else "")
             self._draw(s)
+
+    @staticmethod
+    def _chain_corrections(s: "Session") -> dict | None:
+        """The log state the update chain's ids came from (its state.json "labels"), as ``clutt3r grasp
+        --step`` records it (``SceneAfter.corrections``); None without a run folder or a log."""
+        from clutt3r_core.update.run_labels import chain_source
+        from clutt3r_core.update.scene_after import corrections_record
+
+        run_dir = getattr(getattr(s.app, "annotations", None), "run_dir", None)
+        rec = chain_source(run_dir) if run_dir is not None else None
+        return None if rec is None else corrections_record(rec[1])
 
     def _draw(self, s: "Session") -> None:
         g = self._grasps
