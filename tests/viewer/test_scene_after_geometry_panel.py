@@ -1,0 +1,62 @@
+"""The Grasps tab after an update plans on the instance's points before the contact rule, through the
+core's path (session 9): ``scene_step.scene_grasp_request`` is ``clutt3r grasp --step``'s request
+(``grasping.request.request_from_run``) point for point on a noisy-depth run (where the two
+labellings differ), and Export records the correction log state the chain was computed from, as
+``clutt3r grasp --step 1`` writes it. Driven without a browser against a real viser server."""
+
+from __future__ import annotations
+
+import json
+import threading
+from types import SimpleNamespace
+
+import numpy as np
+
+from clutt3r_core.annotations import Annotations, Merge
+from tests.core.update.test_scene_after_geometry import _chain, _roles, base, run  # noqa: F401  (fixtures)
+from tests.viewer.conftest import free_port
+
+
+def test_the_grasps_tab_after_an_update_plans_the_pre_contact_extent(run, base):  # noqa: F811
+    import viser
+
+    import clutt3r_viewer.panels.update_sources  # noqa: F401  (registers the loader)
+    from clutt3r_core.grasping.request import request_from_run
+    from clutt3r_core.update.state import load_state
+    from clutt3r_viewer.loading import load_viewer_data
+    from clutt3r_viewer.panels.grasps import GraspsPanel
+    from clutt3r_viewer.scene_step import scene_grasp_request, shown_scene
+    from clutt3r_viewer.state import SessionState
+
+    _, seg, pre, cleared = base
+    static, moved, removed = _roles(cleared)
+    with Annotations.open(run, segmentation=seg, author="test") as ann:
+        ann.apply_op(Merge(into=removed, other=moved))  # a corrected chain: I{moved} is part of I{removed}
+    _, T = _chain(run, moved=removed)  # the merged instance is pushed, the other stays
+    d = load_viewer_data(run)
+    assert len(d.updates) == 1
+    for k, n in ((static, (pre == static).sum()), (removed, np.isin(pre, [removed, moved]).sum())):
+        got = scene_grasp_request(d, 1, k)
+        want = request_from_run(run, k, step=1)[0]
+        np.testing.assert_array_equal(got.points, want.points)
+        np.testing.assert_array_equal(got.normals, want.normals)
+        np.testing.assert_array_equal(got.target, want.target)
+        assert got.target.sum() == n  # the cleared points are in (of both merged parts)
+    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
+    notes: list[str] = []
+    try:
+        with Annotations.open(run, segmentation=seg, author="test") as ann:
+            s = SimpleNamespace(client=server, lock=threading.RLock(), state=SessionState(),
+                                app=SimpleNamespace(data=d, annotations=ann),
+                                notify=lambda title, body: notes.append(body), scene_step=lambda: 1,
+                                scene=lambda: shown_scene(d, 1, np.arange(len(seg.points))))
+            p = GraspsPanel()
+            p.build(s)
+            p.plan_for(s, static)
+            assert f"({int((pre == static).sum())} target points)" in p.summary.content, p.summary.content
+            p._export(s)
+        doc = json.loads((run / "grasps.json").read_text())
+        src = load_state(run / "updates" / "01_frame_000008").labels
+        assert doc["step"] == 1 and doc["target"] == static and doc["corrections"] == src.to_json()
+    finally:
+        server.stop()
