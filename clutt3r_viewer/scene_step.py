@@ -244,8 +244,9 @@ def chain_steps(data) -> tuple[StepSummary, ...]:
 def scene_grasp_request(data, step: int, k: int):
     """A ``GraspRequest`` for instance ``k`` of the scene after ``step`` updates: the core's
     ``SceneAfter.grasp_request`` (``scene_after_of``), so the Grasps tab plans what ``clutt3r grasp``
-    plans (the target: ``k``'s points before the contact rule, ``SceneAfter.grasp_target``). No depth views: the initial views no longer show the updated scene (a cloud-only
-    collision check; the Grasps tab says so). ``SceneError`` when ``k`` is not in that scene."""
+    plans (the target: ``k``'s points before the contact rule, ``SceneAfter.grasp_target``). No
+    depth views: the initial views no longer show the updated scene (a cloud-only collision check;
+    the Grasps tab says so). ``SceneError`` when ``k`` is not in that scene."""
     from clutt3r_core.runs import run_voxel_size
 
     return scene_after_of(data, step).grasp_request(k, voxel_size=run_voxel_size(data.seg))

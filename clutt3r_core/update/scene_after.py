@@ -33,6 +33,10 @@ a displaced object's contact points stayed where it was (a ghost strip in the co
 
 ``compose_motions`` is the one place motions of a chain compose (``pose_new = T_world @
 pose_old``).
+
+Over 500 lines (~600): the scene, its two inputs' readers (``chain_inputs`` here, the viewer's
+from the same types) and the chain-file helpers they share are one contract; most of the length
+is the dataclasses' documented fields.
 """
 
 from __future__ import annotations
@@ -48,9 +52,9 @@ import numpy as np
 
 from clutt3r_core.errors import Clutt3rError, SceneError, SceneFileError
 
-__all__ = ["SceneAfter", "ChainInputs", "build_scene_after", "chain_inputs", "scene_after", "chain_length", "chain_geometry",
-           "compose_motions", "resolve_step", "update_docs", "added_masks", "post_camera", "post_cameras", "corrections_record",
-           "post_eyes", "oriented_normals", "ADDED_NORMAL_KNN"]
+__all__ = ["SceneAfter", "ChainInputs", "build_scene_after", "chain_inputs", "scene_after", "chain_length",
+           "chain_geometry", "compose_motions", "resolve_step", "update_docs", "added_masks", "post_camera",
+           "post_cameras", "corrections_record", "post_eyes", "oriented_normals", "ADDED_NORMAL_KNN"]
 
 ADDED_NORMAL_KNN = 16
 """ours: neighbours of the PCA normals of added instances (the viewer's Grasps tab uses the same)."""

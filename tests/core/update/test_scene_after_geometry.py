@@ -95,7 +95,8 @@ def test_the_target_after_an_update_is_the_pre_contact_extent(run, base):
     pts = seg.points.astype(np.float64)
     for k, want in ((static, pts[pre == static]), (moved, pts[pre == moved] @ T[:3, :3].T + T[:3, 3])):
         req = request_from_run(run, k, step=1)[0]
-        assert req.target.sum() == (pre == k).sum() > (seg.instance == k).sum()  # the cleared points are in
+        assert ((pre == k) != (seg.instance == k)).any()  # the contact rule changed k's points: the test tells
+        assert req.target.sum() == (pre == k).sum()
         np.testing.assert_allclose(_rows(req.points[req.target]), _rows(want), atol=1e-6)
     with pytest.raises(SceneError, match="removed by update 1"):
         request_from_run(run, removed, step=1)
@@ -148,17 +149,19 @@ def test_a_chain_whose_state_holds_the_contact_labels_keeps_its_scene(run, base)
 
 
 def test_a_corrected_chain_records_its_log_state_and_targets_the_merged_extent(run, base, capsys):
-    """Merge before the update: the target of the merged id after the update is both parts' pre-contact
-    points (the state's), and grasps.json / --json record the chain's log state at step 1 as at step 0
+    """Merge before the update: the target of the merged id after the update is its target before it
+    (both parts' points before the contact rule, ``StepZeroLabels.target``), and grasps.json / --json record the chain's log state at step 1 as at step 0
     (fails on 2344491: no "corrections" at step > 0)."""
     from clutt3r_core.commands.grasp import grasp_command
-    from clutt3r_core.update.scene_after import chain_inputs
+    from clutt3r_core.update.run_labels import step_zero_labels
+    from clutt3r_core.update.scene_after import chain_inputs, scene_after
     from clutt3r_core.update.state import load_state
 
     _, seg, pre, cleared = base
     static, moved, removed = _roles(cleared)
     with Annotations.open(run, segmentation=seg, author="test") as ann:
         ann.apply_op(Merge(into=static, other=moved))
+    want = step_zero_labels(seg, run).target(static)  # the target before the update (both parts, pre-contact)
     _chain(run, moved=None, removed=removed)
     grasp_command(run, instance=static, json=True, top=3, step=1)
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
@@ -168,7 +171,8 @@ def test_a_corrected_chain_records_its_log_state_and_targets_the_merged_extent(r
     from clutt3r_core.grasping.request import request_from_run
 
     req = request_from_run(run, static, step=1)[0]
-    assert req.target.sum() == np.isin(pre, [static, moved]).sum()
+    assert (want != np.isin(seg.instance, [static, moved])).any()  # not the contact rule's labels: the test tells
+    np.testing.assert_array_equal(req.target, want[~scene_after(run, 1, seg=seg).gone])  # static: as before it
     with pytest.raises(SceneError):
         request_from_run(run, moved, step=1)  # merged away: not in the chain's labelling
     inp = chain_inputs(run, 1, seg=seg)
