@@ -403,6 +403,9 @@ class SupervoxelExplanation:
     recorded: bool
     winner_points: float
     min_instance_points: int
+    span_cleared: tuple[tuple[int, int], ...] = ()
+    """(node, its group) of each mask whose occupancy of this super-voxel the vote ignored: it
+    spans another group's footprint there (``vote.span_cover``, ``segmentation.span``)."""
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -423,6 +426,9 @@ class SupervoxelExplanation:
         for gv in self.tally:
             lines.append(f"  group {gv.group}: vote {gv.vote:.3f} from {gv.n_masks} masks -> instance "
                          f"{_inst(gv.instance)}" + ("" if gv.eligible else " (below min_group_size: no vote)"))
+        for node, gi in self.span_cleared:
+            lines.append(f"  mask node {node} (group {gi}) did not vote here: it spans another group's footprint "
+                         "that its own group's other masks do not cover (vote.span_cover)")
         if not self.recorded:
             lines.append("the full tally and the reason are not recorded in this run")
         return "\n".join(lines)
@@ -461,7 +467,15 @@ def explain_supervoxel(run, k: int) -> SupervoxelExplanation:
         reason = "labelled" if v.sv_label[k] >= 0 else "not_recorded"
     wg = int(v.sv_group[k])
     wpts = float(v.group_points[wg]) if recorded and wg >= 0 and v.group_points is not None else float("nan")
+    cleared: tuple[tuple[int, int], ...] = ()
+    if v.span_cleared is not None and len(v.span_cleared):
+        member = np.full(len(t.nodes), -1, np.int64)
+        for gi, m in enumerate(t.grouping.groups):
+            member[list(m)] = gi
+        nodes = v.span_cleared[v.span_cleared[:, 1] == k, 0]
+        cleared = tuple((int(n), int(member[n])) for n in nodes)
     return SupervoxelExplanation(
+        span_cleared=cleared,
         k=k, label=int(v.sv_label[k]), winner_group=wg, winner_vote=float(v.sv_vote[k]),
         runner_up_vote=float(v.sv_runner_up[k]), coverage=float(v.sv_coverage[k]),
         min_coverage=float(cfg.min_coverage), tally=tuple(tally), reason=reason, recorded=recorded,

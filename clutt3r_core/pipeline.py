@@ -41,6 +41,7 @@ from clutt3r_core.segmentation.contact_masks import mask_views
 from clutt3r_core.segmentation.refine import absorb_fragments, contact_labels, labels_before_contact
 from clutt3r_core.segmentation.trace import StageClock, StageTiming, Trace
 from clutt3r_core.segmentation.trees import InstanceTree, build_tree_overlaps
+from clutt3r_core.segmentation.span import span_revote
 from clutt3r_core.segmentation.unvoted import unvoted_instances
 from clutt3r_core.segmentation.vote import supervoxel_vote
 from clutt3r_core.supervoxels import build_supervoxels
@@ -283,6 +284,14 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
         vote = revote(grouping.groups)
         # ours (issue 13): fragment groups join the instance that won their masks' footprint
         grouping, vote = absorb_fragments(grouping, vote, occupancy, sv.counts, s_spat, s_sem, revote, config.refine)
+        if config.vote.span_cover > 0:
+            # ours (session 9), off by default: a mask spanning another group's footprint, unconfirmed
+            # by its own group, does not vote there (``segmentation.span``); after the absorption, so
+            # that a fragment of the mask's own object has joined its group first
+            groups = grouping.groups
+            vote = span_revote(groups, occupancy, sv.counts, sv.support, vote,
+                               lambda occ: supervoxel_vote(groups, occ, sv.counts, sv.support, s_spat, len(views),
+                                                           config.vote), config.vote)
         # the vote's labels per voxel; ours, off by default: small super-voxels smoothed (session 8),
         # weak echoes unlabelled (issue 13). One function, so that the labels the contact rule
         # changes can be recomputed from a run (``refine.run_labels_before_contact``)

@@ -195,6 +195,8 @@ def save_trace(trace: Trace, folder: str | Path) -> Path:
     if v.sv_reason is not None:
         arrays.update(sv_top_group=v.sv_top_group, sv_top_vote=v.sv_top_vote.astype(np.float32),
                       sv_reason=v.sv_reason, group_points=v.group_points)
+    if v.span_cleared is not None:  # ours (session 9): occupancies the vote ignored (segmentation.span)
+        arrays.update(span_cleared=np.asarray(v.span_cleared, np.int32).reshape(-1, 2))
     g = trace.grouping
     if g.blocked is not None:
         arrays.update({f"blocked_{f}": getattr(g.blocked, f) for f in ("stop", "a", "b", "rule", "score")})
@@ -266,6 +268,7 @@ def load_trace(folder: str | Path) -> Trace:
         sv_top_group=z.get("sv_top_group"),
         sv_top_vote=z["sv_top_vote"].astype(np.float32) if "sv_top_vote" in z else None,
         sv_reason=z.get("sv_reason"), group_points=z.get("group_points"),
+        span_cleared=z["span_cleared"].reshape(-1, 2) if "span_cleared" in z else None,
     )
     return Trace(
         frames=z["frames"],

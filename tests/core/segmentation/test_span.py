@@ -1,0 +1,149 @@
+"""Spanning candidate masks (``segmentation.span``, ours, session 9; off by default)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from clutt3r_core.config import ADDED_AFTER_V1, SegmentConfig, config_from_json, config_to_json
+from clutt3r_core.errors import SceneError
+from clutt3r_core.segmentation.span import cleared_occupancy, span_revote, spanning_votes
+from clutt3r_core.segmentation.vote import VoteConfig, supervoxel_vote
+
+K = 8  # super-voxels 0-4: object A, 5-7: object B
+COUNTS = np.full(K, 10)
+NO_SUPPORT = np.zeros(K, bool)
+
+
+def _occ(spanning: float = 1.0, b_occ: tuple[float, float] = (0.6, 0.6), a_covers_b: bool = False) -> np.ndarray:
+    """Group A = masks 0, 1, 2 (mask 0 spans B's super-voxels), group B = masks 3, 4."""
+    o = np.zeros((5, K), np.float32)
+    o[0:3, 0:5] = 1.0
+    o[0, 5:8] = spanning
+    if a_covers_b:
+        o[1:3, 5:8] = 1.0
+    o[3, 5:8], o[4, 5:8] = b_occ
+    return o
+
+
+GROUPS = ((0, 1, 2), (3, 4))
+ELIGIBLE = np.ones(2, bool)
+
+
+def test_a_mask_spanning_another_group_is_found_and_cleared_there_only():
+    s = spanning_votes(GROUPS, _occ(), COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5)
+    assert s.node.tolist() == [0] and s.group.tolist() == [0] and s.spanned.tolist() == [1]
+    assert s.cover[0] == pytest.approx(1.0) and s.confirm[0] == pytest.approx(0.0)
+    assert s.cleared.tolist() == [[0, 5], [0, 6], [0, 7]]
+    occ = cleared_occupancy(_occ(), s.cleared)
+    assert (occ[0, 5:] == 0).all() and (occ[0, :5] == 1).all() and (occ[1:] == _occ()[1:]).all()
+
+
+def test_no_mask_spans_when_off_when_its_group_confirms_it_or_on_support():
+    assert len(spanning_votes(GROUPS, _occ(), COUNTS, NO_SUPPORT, ELIGIBLE, 0.0, 0.5).node) == 0
+    # a whole-object group over a fragment of its own object: its other masks cover it too
+    assert len(spanning_votes(GROUPS, _occ(a_covers_b=True), COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5).node) == 0
+    support = np.zeros(K, bool)
+    support[5:] = True  # B's super-voxels are table: no footprint
+    assert len(spanning_votes(GROUPS, _occ(), COUNTS, support, ELIGIBLE, 0.5, 0.5).node) == 0
+    # a group that does not vote (min_group_size) is never spanned
+    assert len(spanning_votes(GROUPS, _occ(), COUNTS, NO_SUPPORT, np.array([True, False]), 0.5, 0.5).node) == 0
+    # the spanning mask covers only 1 of B's 3 super-voxels: below a cover of 0.5
+    o = _occ()
+    o[0, 6:] = 0.0
+    assert len(spanning_votes(GROUPS, o, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5).node) == 0
+
+
+def test_the_spanned_object_gets_its_super_voxels_back_and_the_scores_stay():
+    cfg = dataclasses.replace(VoteConfig(), span_cover=0.5)
+
+    def vote_on(o):
+        return supervoxel_vote(GROUPS, o, COUNTS, NO_SUPPORT, np.zeros((5, 5)), 5, cfg)
+
+    # B's masks (0.55 + 0.4) lose to A's one spanning mask (1.0) on B's super-voxels
+    weak_b = _occ(b_occ=(0.55, 0.4))
+    before = vote_on(weak_b)
+    a = int(np.flatnonzero(before.instance_group == 0)[0])
+    assert (before.sv_label[5:] == a).all()
+    # span_revote keeps each instance's confidence from the vote it gets (e.g. the absorption's)
+    assert len(before.instance_group) == 1  # B won nothing: not an instance
+    kept = dataclasses.replace(before, scores=np.array([0.9], np.float32))
+    after = span_revote(GROUPS, weak_b, COUNTS, NO_SUPPORT, kept, vote_on, cfg)
+    b_after = int(np.flatnonzero(after.instance_group == 1)[0])
+    assert (after.sv_label[5:] == b_after).all() and (after.sv_label[:5] != b_after).all()
+    assert after.span_cleared.tolist() == [[0, 5], [0, 6], [0, 7]]
+    a_after = int(np.flatnonzero(after.instance_group == 0)[0])
+    assert after.scores[a_after] == pytest.approx(0.9)  # kept; B's is its own (2 masks of 5 views)
+    assert after.scores[b_after] == pytest.approx(2 / 5, abs=1e-2)
+    assert (np.diff(after.scores) <= 0).all()
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.floats(0.05, 1.0), st.floats(0.05, 1.0))
+def test_cleared_pairs_are_unconfirmed_occupied_footprint_cells_and_shrink_with_the_cover(seed, cover, confirm):
+    rng = np.random.default_rng(seed)
+    u, k = 12, 20
+    occ = np.where(rng.random((u, k)) < 0.4, rng.random((u, k)), 0.0).astype(np.float32)
+    counts = rng.integers(1, 50, k)
+    support = rng.random(k) < 0.2
+    perm = rng.permutation(u)
+    cuts = np.sort(rng.choice(np.arange(1, u), 3, replace=False))
+    groups = tuple(tuple(sorted(p.tolist())) for p in np.split(perm, cuts) if len(p))
+    eligible = rng.random(len(groups)) < 0.8
+    s = spanning_votes(groups, occ, counts, support, eligible, cover, confirm)
+    member = {n: gi for gi, m in enumerate(groups) for n in m}
+    for node, sv in s.cleared.tolist():
+        gi = member[node]
+        assert eligible[gi] and not support[sv] and occ[node, sv] >= 0.5
+        assert not any(occ[j, sv] >= 0.5 for j in groups[gi] if j != node)  # no other mask of its group
+        spanned = s.spanned[s.node == node]
+        assert any(occ[list(groups[b]), sv].sum() >= 0.5 for b in spanned)  # in a spanned footprint
+    assert (s.cover >= cover).all() and (s.confirm < confirm).all() and (s.spanned != s.group).all()
+    # a higher cover threshold clears a subset
+    hi = spanning_votes(groups, occ, counts, support, eligible, min(1.0, cover + 0.2), confirm)
+    assert {tuple(p) for p in hi.cleared.tolist()} <= {tuple(p) for p in s.cleared.tolist()}
+
+
+def test_config_is_checked_and_old_configs_load_with_it_off(tmp_path):
+    with pytest.raises(SceneError):
+        VoteConfig(span_cover=-0.1)
+    with pytest.raises(SceneError):
+        VoteConfig(span_confirm=0.0)
+    assert SegmentConfig().vote.span_cover == 0.0  # off by default
+    data = config_to_json(SegmentConfig())
+    for f in ("span_cover", "span_confirm", "span_occupancy"):
+        assert f"vote.{f}" in ADDED_AFTER_V1
+        del data["vote"][f]
+    assert config_from_json(data, tmp_path / "config.json").vote == SegmentConfig().vote
+
+
+def test_a_run_with_the_rule_saves_its_cleared_pairs_and_explains_them(tmp_path, capsys):
+    from clutt3r_core.commands.explain import explain_command
+    from clutt3r_core.config import with_fields
+    from clutt3r_core.explain import explain_supervoxel
+    from clutt3r_core.pipeline import load_run, save_run, segment
+    from clutt3r_core.synth import write_synth_scene
+
+    from tests.core._tiny_run import tiny_scene
+
+    scene = tiny_scene()
+    # a low cover so that the tiny scene's masks span something (it has no under-segmented candidate)
+    seg = segment(scene, with_fields(SegmentConfig(), {"vote.span_cover": 0.05, "vote.span_confirm": 1.0}))
+    sc = seg.trace.vote.span_cleared
+    assert sc is not None and sc.ndim == 2 and sc.shape[1] == 2
+    off = segment(scene, SegmentConfig())
+    assert off.trace.vote.span_cleared is None
+    d = tmp_path / "run"
+    save_run(seg, d, scene_root=write_synth_scene(scene, tmp_path / "scene", contact_sheet=False))
+    back = load_run(d)
+    assert (back.trace.vote.span_cleared == sc).all() and (back.instance == seg.instance).all()
+    if len(sc):
+        k = int(sc[0, 1])
+        e = explain_supervoxel(back, k)
+        assert int(sc[0, 0]) in [n for n, _ in e.span_cleared]
+        explain_command(d, supervoxel=k)
+        assert "did not vote here" in capsys.readouterr().out
