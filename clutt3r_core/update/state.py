@@ -36,7 +36,7 @@ import numpy as np
 
 from clutt3r_core.errors import SceneError, SceneFileError
 from clutt3r_core.io.images import atomic_write_bytes, atomic_write_npz
-from clutt3r_core.update.run_labels import LabelSource, RunLabels, fused_count, run_share
+from clutt3r_core.update.run_labels import LabelSource, RunLabels, corrected_geometry_labels, fused_count, run_share
 from clutt3r_core.update.types import LOSS_NAMES, PoseTrace, UpdateResult
 
 __all__ = [
@@ -209,7 +209,9 @@ def state_from_segmentation(seg, voxel_size: float = 0.005, run: Path | None = N
                           embedder=seg.trace.embedder, voxel_size=voxel_size, run=run)
     if len(labels.instance) != len(seg.points):
         raise SceneError(f"corrected labels have {len(labels.instance)} points, the run {len(seg.points)}")
-    inst = _corrected_geometry_labels(seg, labels.instance, n)
+    # the contact's cleared points mapped through the corrections (``corrected_geometry_labels``; the
+    # grasp target at step 0 reads the same mapping, ``run_labels.StepZeroLabels.geometry``)
+    inst = corrected_geometry_labels(seg, labels.instance, n)
     ids = np.unique(inst[inst >= 0]).astype(np.int32)  # rim-only instances have no point here
     cemb = (run_share(labels.instance, seg, labels.num_ids)[ids] @ emb).astype(np.float32)
     norm = np.linalg.norm(cemb, axis=1, keepdims=True)
@@ -228,14 +230,6 @@ def _geometry_labels(seg, n: int) -> np.ndarray:
     from clutt3r_core.segmentation.refine import run_labels_before_contact
 
     return run_labels_before_contact(seg)[:n]
-
-
-def _corrected_geometry_labels(seg, corrected: np.ndarray, n: int) -> np.ndarray:
-    """``run_labels.corrected_geometry_labels`` (moved there in session 9: the grasp target at step 0
-    reads the same mapping, ``run_labels.StepZeroLabels.geometry``)."""
-    from clutt3r_core.update.run_labels import corrected_geometry_labels
-
-    return corrected_geometry_labels(seg, corrected, n)
 
 
 def state_from_run(run_dir: str | Path) -> SceneState:
