@@ -1,8 +1,8 @@
 """Does the per-point mask test separate the contact fill's object walls from floor noise? (session 9)
 
-For each scene, ``segment`` runs with the contact fill on (``refine.contact_height`` 3 mm, fill 4-12 mm
-above each object's own support level) and ``contact_labels`` is called again on its inputs with
-the fill's mask test off, so every fill candidate is known. For each, ``point_mask_votes`` counts
+For each scene, ``segment`` runs with the contact fill on (the default since session 9: contact 2 mm,
+fill 4-12 mm above each object's own support level) and ``contact_labels`` is called again on its
+inputs with the fill's mask test off, so every fill candidate is known. For each, ``point_mask_votes`` counts
 the views that see it and those that put it inside the masks of the instance it joins; the same
 for that instance's own points (labelled before the fill) in the same height band. Prints one JSON
 line per scene: counts, the mean share inside of filled and own points, how many filled points
@@ -11,7 +11,7 @@ object by the ground truth (nearest GT point's label against the instance's majo
 
     .venv/bin/python benchmarks/bench_contact_masks.py /work/shared/data/clutt3r-samples/sample_seq4/data \
         --picture /tmp/seq4_fill.png
-    .venv/bin/python benchmarks/bench_contact_masks.py --seeds 2 3
+    .venv/bin/python benchmarks/bench_contact_masks.py --seeds 2 3 --margins 0 1 2 --shares 0.5 0.3
 
 ``--picture`` (one scene) draws the filled points over the first view: kept by the test at
 ``--shares``' and ``--margins``' first values green, refused red, the instance's own points in the band blue.
@@ -29,7 +29,7 @@ import clutt3r_core.pipeline as pipeline
 from clutt3r_core.config import SegmentConfig, with_fields
 from clutt3r_core.segmentation.contact_masks import point_mask_votes
 
-FILL = {"refine.contact_height": 0.003, "refine.contact_fill_low": 0.004, "refine.contact_fill_high": 0.012,
+FILL = {"refine.contact_height": 0.002, "refine.contact_fill_low": 0.004, "refine.contact_fill_high": 0.012,
         # a share that no seen point fails: the pipeline builds the views; the record below
         # re-runs the rule without the test
         "refine.contact_fill_mask_share": 1e-9}

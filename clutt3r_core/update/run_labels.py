@@ -267,7 +267,8 @@ def corrected_geometry_labels(seg, corrected: np.ndarray, n: int, pre: np.ndarra
     carries them to the merged id, a split to the nearer part; a deleted instance keeps them
     unlabelled (none of its points has an id). Without this a correction brought the contact's
     labels back into the update's geometry (``state._geometry_labels``: the moved clamp read
-    static) and into the grasp target (``StepZeroLabels.geometry``).
+    static) and into the grasp target (``StepZeroLabels.geometry``). The points the contact fill
+    labelled (unlabelled before the rule) are left unlabelled, as in ``run_labels_before_contact``.
 
     ``pre``: ``refine.run_labels_before_contact(seg)`` when already computed (the viewer keeps it)."""
     if pre is None:
@@ -276,7 +277,11 @@ def corrected_geometry_labels(seg, corrected: np.ndarray, n: int, pre: np.ndarra
         pre = run_labels_before_contact(seg)
     out = np.array(corrected[:n], np.int32)
     pre = np.asarray(pre)[:n]
-    cleared = (pre >= 0) & (np.asarray(seg.instance[:n]) < 0) & (out < 0)
+    run = np.asarray(seg.instance[:n])
+    # the points the contact fill labelled (unlabelled before the rule) are not the geometry's either,
+    # whatever id a correction gave them (``refine.contact_labels``; on by default since session 9)
+    out[(pre < 0) & (run >= 0)] = -1
+    cleared = (pre >= 0) & (run < 0) & (out < 0)
     if not cleared.any():
         return out
     from scipy.spatial import cKDTree

@@ -13,7 +13,13 @@ from clutt3r_core.segmentation.contact_masks import MaskViews, mask_views, point
 from clutt3r_core.segmentation.refine import RefineConfig, contact_labels
 from tests.core.segmentation.test_table_contact import PLANE, N, _box_on_floor
 
-FILL = dict(contact_height=0.0, contact_fill_low=0.004, contact_fill_high=0.012)
+# the fill alone (no contact), its mask test off unless a test sets it (no pixel margin: these masks are exact)
+FILL = dict(contact_height=0.0, contact_fill_low=0.004, contact_fill_high=0.012, contact_fill_mask_share=0.0,
+            contact_fill_mask_margin=0)
+
+
+def fill_cfg(**kw) -> RefineConfig:
+    return RefineConfig(**{**FILL, **kw})
 W = H = 96
 
 
@@ -95,17 +101,17 @@ def test_votes_count_seen_views_and_masks():
 def test_mask_test_keeps_walls_and_refuses_the_floor_specks():
     p, n, inst, box, cams = box_scene()
     views = views_of(p, box, cams)
-    untested = contact_labels(p, n, inst, 1, PLANE, RefineConfig(**FILL))
+    untested = contact_labels(p, n, inst, 1, PLANE, fill_cfg())
     specks = ~box & (inst < 0) & (p @ N + PLANE[3] > 0.005)
     assert untested.filled[specks].all()  # without the test the fill takes every speck (6 mm, beside the wall)
     assert untested.filled[box].sum() > 20  # ... and the box's lowest walls
-    tested = contact_labels(p, n, inst, 1, PLANE, RefineConfig(**FILL, contact_fill_mask_share=0.5), views)
+    tested = contact_labels(p, n, inst, 1, PLANE, fill_cfg(contact_fill_mask_share=0.5), views)
     assert not tested.filled[specks].any() and tested.rejected[specks].all()
     assert tested.filled[box].sum() >= 0.5 * untested.filled[box].sum()  # walls seen by the cameras stay
     assert np.array_equal(tested.filled | tested.rejected, untested.filled)
     # without the views the test cannot run: one clear error, not a silent pass
     with pytest.raises(SceneError, match="needs the views"):
-        contact_labels(p, n, inst, 1, PLANE, RefineConfig(**FILL, contact_fill_mask_share=0.5))
+        contact_labels(p, n, inst, 1, PLANE, fill_cfg(contact_fill_mask_share=0.5))
 
 
 @settings(max_examples=25, deadline=None)
@@ -115,9 +121,9 @@ def test_the_test_only_removes_fill_points(seed, s1, s2, tol, contact):
     p, n, inst, _, cams = box_scene()
     rng = np.random.default_rng(seed)
     views = views_of(p, rng.random(len(p)) < 0.6, cams)  # a random mask
-    base = RefineConfig(**{**FILL, "contact_height": contact})
+    base = fill_cfg(contact_height=contact)
     untested = contact_labels(p, n, inst, 1, PLANE, base)
-    lo, hi = (RefineConfig(**{**FILL, "contact_height": contact}, contact_fill_mask_share=s, contact_fill_mask_depth=tol)
+    lo, hi = (fill_cfg(contact_height=contact, contact_fill_mask_share=s, contact_fill_mask_depth=tol)
               for s in sorted((s1, s2)))
     a, b = (contact_labels(p, n, inst, 1, PLANE, c, views) for c in (lo, hi))
     for r in (a, b):
@@ -153,7 +159,9 @@ def test_config_checks_and_old_traces():
         RefineConfig(contact_fill_mask_depth=0.0)
     with pytest.raises(SceneError, match="contact_fill_mask_margin"):
         RefineConfig(contact_fill_mask_margin=-1)
-    assert PRESETS["default"].refine.contact_fill_mask_share == 0.0
+    # on by default since session 9 (an addition: the paper preset has no fill)
+    assert PRESETS["default"].refine.contact_fill_mask_share == 0.5 and PRESETS["default"].refine.contact_fill_mask_margin == 2
+    assert PRESETS["paper"].refine.contact_fill_high == 0.0 and PRESETS["paper"].refine.contact_fill_mask_share == 0.0
     assert ADDED_AFTER_V1["refine.contact_fill_mask_share"] == 0.0  # old traces: no test
 
 
@@ -164,10 +172,12 @@ def test_pipeline_test_removes_only_fill_points():
 
     scene = generate_scene(SynthConfig(seed=0, preset="easy", views=3, width=320, height=240, n_objects=3,
                                        depth_noise="realsense"), progress=False)
-    fill = {"refine.contact_height": 0.0, "refine.contact_fill_low": 0.004, "refine.contact_fill_high": 0.012}
-    off = segment(scene, with_fields(SegmentConfig(), {"refine.contact_height": 0.0}))
-    untested = segment(scene, with_fields(SegmentConfig(), fill))
-    tested = segment(scene, with_fields(SegmentConfig(), {**fill, "refine.contact_fill_mask_share": 0.5}))
+    # the fill alone, its test at the default share without the pixel margin (with the default 2 px the
+    # test keeps all 18 fill points of this small scene, measured: nothing to see removed)
+    fill = {"refine.contact_height": 0.0, "refine.contact_fill_mask_margin": 0}
+    off = segment(scene, with_fields(SegmentConfig(), {"refine.contact_height": 0.0, "refine.contact_fill_high": 0.0}))
+    untested = segment(scene, with_fields(SegmentConfig(), {**fill, "refine.contact_fill_mask_share": 0.0}))
+    tested = segment(scene, with_fields(SegmentConfig(), fill))
     filled = untested.instance != off.instance
     assert filled.any() and (off.instance[filled] == -1).all()  # this scene's fill takes points (measured)
     kept = tested.instance != off.instance

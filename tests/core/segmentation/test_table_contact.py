@@ -31,7 +31,7 @@ def sideways(m: int) -> np.ndarray:
 
 def cleared(p: np.ndarray, inst: np.ndarray, plane, height: float) -> np.ndarray:
     """``contact_labels``' cleared points of 3 objects on ``plane`` with normals along it."""
-    r = contact_labels(p, sideways(len(p)), inst, 3, plane, RefineConfig(contact_height=height))
+    r = contact_labels(p, sideways(len(p)), inst, 3, plane, RefineConfig(contact_height=height, contact_fill_high=0.0))
     assert not r.level.any() and np.array_equal(r.instance, np.where(r.cleared, -1, inst))
     return r.cleared
 
@@ -55,9 +55,9 @@ def test_config_checks_the_height_and_presets():
     with pytest.raises(SceneError, match="contact_height"):
         RefineConfig(contact_height=0.2)  # metres, not millimetres
     # on by default since session 8 (its grasp and update costs removed: run_labels_before_contact), an
-    # addition the paper preset switches off; the fill stays off
+    # addition the paper preset switches off; the fill with its mask test too (on since session 9)
     assert PRESETS["default"].refine.contact_height == 0.002 and PRESETS["paper"].refine.contact_height == 0.0
-    assert PRESETS["default"].refine.contact_fill_high == 0.0
+    assert PRESETS["default"].refine.contact_fill_high == 0.012 and PRESETS["paper"].refine.contact_fill_high == 0.0
 
 
 @settings(max_examples=30, deadline=None)
@@ -85,8 +85,8 @@ def test_pipeline_unlabels_only_the_contact():
     # (the support rule takes the lowest 10 mm; measured on tests.core.test_pipeline.small_scene)
     scene = generate_scene(SynthConfig(seed=0, preset="easy", views=3, width=320, height=240, n_objects=3,
                                        depth_noise="realsense"), progress=False)
-    on = segment(scene, with_fields(SegmentConfig(), {"refine.contact_height": 0.002}))
-    off = segment(scene, with_fields(SegmentConfig(), {"refine.contact_height": 0.0}))
+    on = segment(scene, with_fields(SegmentConfig(), {"refine.contact_height": 0.002, "refine.contact_fill_high": 0.0}))
+    off = segment(scene, with_fields(SegmentConfig(), {"refine.contact_height": 0.0, "refine.contact_fill_high": 0.0}))
     assert np.array_equal(on.points, off.points) and np.array_equal(on.scores, off.scores)
     changed = on.instance != off.instance
     assert changed.any()  # this scene's objects rest on the table: some contact points were labelled (measured)
@@ -94,12 +94,13 @@ def test_pipeline_unlabels_only_the_contact():
     # exactly the labelled points within 2 mm of their object's support level (``contact_labels``)
     cfg = SegmentConfig()
     plane = build_supervoxels(fuse_views(scene.initial_views, cfg.pointcloud), cfg.supervoxels).plane
-    res = contact_labels(off.points, off.normals, off.instance, off.num_instances, plane, RefineConfig(contact_height=0.002))
+    res = contact_labels(off.points, off.normals, off.instance, off.num_instances, plane,
+                         RefineConfig(contact_height=0.002, contact_fill_high=0.0))
     assert np.array_equal(changed, res.cleared) and not res.filled.any()
     assert np.abs(res.level).max() < 0.002  # objects on the table itself: levels within the noise of the plane
     fill = with_fields(SegmentConfig(), {"refine.contact_height": 0.003, "refine.contact_fill_low": 0.004,
-                                         "refine.contact_fill_high": 0.012})
-    both = segment(scene, fill)
+                                         "refine.contact_fill_high": 0.012, "refine.contact_fill_mask_share": 0.0})
+    both = segment(scene, fill)  # (the fill without its mask test: contact_labels is called without views)
     res = contact_labels(off.points, off.normals, off.instance, off.num_instances, plane, fill.refine)
     assert np.array_equal(both.instance, res.instance)
 
@@ -114,7 +115,7 @@ def test_clean_depth_is_left_alone():
     scene = small_scene(0)
     hi = segment(scene, with_fields(SegmentConfig(), {"refine.contact_height": 0.03}))
     assert hi.trace.surface.method == "voxel-mean"
-    off = segment(scene, with_fields(SegmentConfig(), {"refine.contact_height": 0.0}))
+    off = segment(scene, with_fields(SegmentConfig(), {"refine.contact_height": 0.0, "refine.contact_fill_high": 0.0}))
     assert np.array_equal(hi.instance, off.instance)
 
 
@@ -153,7 +154,7 @@ def test_contact_fill_and_clear_relative_to_the_measured_floor(floor):
     p, n, inst, h = _box_on_floor(floor)
     lvl, noise = support_levels(p, n, inst, 1, PLANE)
     assert abs(lvl[0] - floor) < 0.001 and 0.0003 < noise[0] < 0.002  # the floor around the box, its 1 mm noise
-    cfg = RefineConfig(contact_height=0.003, contact_fill_low=0.004, contact_fill_high=0.012)
+    cfg = RefineConfig(contact_height=0.003, contact_fill_low=0.004, contact_fill_high=0.012, contact_fill_mask_share=0.0)
     r = contact_labels(p, n, inst, 1, PLANE, cfg)
     rel = h - floor
     wall = (inst < 0) & (np.abs(n @ N) < 0.5)
@@ -168,8 +169,8 @@ def test_contact_fill_and_clear_relative_to_the_measured_floor(floor):
 
 def test_contact_labels_off_or_without_a_plane_is_the_identity():
     p, n, inst, _ = _box_on_floor(0.0)
-    for cfg, plane in ((RefineConfig(), PLANE), (RefineConfig(contact_height=0.003, contact_fill_low=0.004,
-                                                                contact_fill_high=0.012), None)):
+    for cfg, plane in ((RefineConfig(contact_fill_high=0.0), PLANE),
+                       (RefineConfig(contact_height=0.003, contact_fill_low=0.004, contact_fill_high=0.012), None)):
         r = contact_labels(p, n, inst, 1, plane, cfg)
         assert np.array_equal(r.instance, inst) and not r.filled.any() and not r.cleared.any()
     with pytest.raises(SceneError, match="contact_fill"):
@@ -185,7 +186,7 @@ def test_contact_labels_invariants(seed, height, low, span):
     p = p - (p @ N + PLANE[3])[:, None] * N + (p @ N + PLANE[3])[:, None] * N  # (heights keep their sign)
     n = rng.normal(size=(m, 3)); n /= np.linalg.norm(n, axis=1, keepdims=True)
     inst = rng.integers(-1, 3, m)
-    cfg = RefineConfig(contact_height=height, contact_fill_low=low, contact_fill_high=low + span)
+    cfg = RefineConfig(contact_height=height, contact_fill_low=low, contact_fill_high=low + span, contact_fill_mask_share=0.0)
     r = contact_labels(p, n, inst, 3, PLANE, cfg)
     h = p @ N + PLANE[3]
     rel = h - np.where(r.instance >= 0, r.level[np.maximum(r.instance, 0)], 0.0)
@@ -214,7 +215,7 @@ def test_update_state_and_grasp_target_read_the_labels_before_the_contact_rule()
                                        depth_noise="realsense"), progress=False)
     on = segment(scene, with_fields(SegmentConfig(), {"refine.contact_height": 0.003, "refine.contact_fill_low": 0.004,
                                                       "refine.contact_fill_high": 0.012}))
-    off = segment(scene, with_fields(SegmentConfig(), {"refine.contact_height": 0.0}))
+    off = segment(scene, with_fields(SegmentConfig(), {"refine.contact_height": 0.0, "refine.contact_fill_high": 0.0}))
     assert not np.array_equal(on.instance, off.instance)
     s_on, s_off = state_from_segmentation(on), state_from_segmentation(off)
     assert np.array_equal(s_on.instance, s_off.instance) and np.array_equal(s_on.points, s_off.points)
@@ -242,7 +243,7 @@ def test_a_corrected_update_state_keeps_the_contact_with_the_corrected_ids():
     scene = generate_scene(SynthConfig(seed=0, preset="easy", views=3, width=320, height=240, n_objects=3,
                                        depth_noise="realsense"), progress=False)
     on = segment(scene, with_fields(SegmentConfig(), {"refine.contact_height": 0.003}))
-    off = segment(scene, with_fields(SegmentConfig(), {"refine.contact_height": 0.0}))
+    off = segment(scene, with_fields(SegmentConfig(), {"refine.contact_height": 0.0, "refine.contact_fill_high": 0.0}))
     assert on.num_instances >= 3 and not np.array_equal(on.instance, off.instance)
     n = len(state_from_segmentation(off).instance)
 
@@ -260,11 +261,12 @@ def test_a_corrected_update_state_keeps_the_contact_with_the_corrected_ids():
 def test_contact_labels_leave_an_object_on_a_noisy_support_alone():
     # the floor around the box as noisy as the real sample_seq1's (7-27 mm measured): nothing changes
     p, n, inst, _ = _box_on_floor(0.0, noise=0.008)
-    cfg = RefineConfig(contact_height=0.003, contact_fill_low=0.004, contact_fill_high=0.012)
+    cfg = RefineConfig(contact_height=0.003, contact_fill_low=0.004, contact_fill_high=0.012, contact_fill_mask_share=0.0)
     r = contact_labels(p, n, inst, 1, PLANE, cfg)
     assert r.noise[0] > cfg.contact_max_noise
     assert np.array_equal(r.instance, inst) and not r.filled.any() and not r.cleared.any()
     # ... and a limit above its noise lets the rule act again
     r = contact_labels(p, n, inst, 1, PLANE, RefineConfig(contact_height=0.003, contact_fill_low=0.004,
-                                                          contact_fill_high=0.012, contact_max_noise=0.05))
+                                                          contact_fill_high=0.012, contact_max_noise=0.05,
+                                                          contact_fill_mask_share=0.0))
     assert r.filled.any()
