@@ -118,14 +118,13 @@ def chain_inputs_of(data, step: int):
                  else HistoryEntry(j + 1, int(u.frame), (), (), np.zeros((0, 4, 4))) for j, u in enumerate(ups))
     now = ups[-1].added_now if ups else ()
     cat = lambda xs, shape, dt: np.concatenate(xs) if xs else np.zeros(shape, dt)  # noqa: E731
-    geo = _chain_geometry(data, inst)
     return ChainInputs(
         points=seg.points, colors=seg.colors, normals=seg.normals, instance=inst, ids=ids, num_ids=n_ids,
         history=hist, n_updates=len(data.updates), added_points=cat([a.points for a in now], (0, 3), np.float32),
         added_colors=cat([a.colors for a in now], (0, 3), np.uint8),
         added_instance=cat([np.full(len(a.points), a.instance, np.int32) for a in now], 0, np.int32),
         eyes={u.frame: u.camera.T_world_camera[:3, 3] for u in ups if u.camera is not None},
-        geometry=None if np.array_equal(geo, inst) else geo)
+        geometry=_chain_geometry(data, inst))
 
 
 def _pre_contact(data) -> np.ndarray:

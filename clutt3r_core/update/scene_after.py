@@ -164,8 +164,9 @@ class ChainInputs:
             once per chain, ``clutt3r_viewer.panels.query.added_instance_evidence``).
         geometry: (N,) int32 the same ids before the contact rule (``chain_geometry``; the update
             state's labels of these points): the points each update moved and removed with their
-            instance, and the grasp target's. None: ``instance`` (a run without the rule, and
-            chains whose state holds other labels, ``chain_inputs``).
+            instance, and the grasp target's. None, or labels equal to ``instance`` (clean depth,
+            the paper preset): ``instance`` itself (a run without the rule, and chains whose state
+            holds other labels, ``chain_inputs``).
         source: the labelling the chain was computed from (``state.json`` "labels",
             ``run_labels.LabelSource``; None: not recorded, and in the viewer's scenes), carried
             into ``SceneAfter``.
@@ -204,8 +205,10 @@ class ChainInputs:
                          ("instance", np.int32), ("ids", np.int32), ("added_points", np.float32),
                          ("added_colors", np.uint8), ("added_instance", np.int32)):
             object.__setattr__(self, name, _ro(getattr(self, name), dt))
-        # None: the same array object as ``instance`` (``build_scene_after`` then skips the second labelling)
-        object.__setattr__(self, "geometry", self.instance if self.geometry is None else _ro(self.geometry, np.int32))
+        # None or equal: the same array object as ``instance`` (``build_scene_after`` then skips the second labelling)
+        geo = self.geometry
+        object.__setattr__(self, "geometry", self.instance if geo is None or np.array_equal(geo, self.instance)
+                           else _ro(geo, np.int32))
         object.__setattr__(self, "history", tuple(self.history))
         object.__setattr__(self, "eyes", MappingProxyType({int(f): np.asarray(e, np.float64)
                                                            for f, e in dict(self.eyes).items()}))
@@ -547,7 +550,7 @@ def chain_inputs(run_dir: str | Path, step: int | None = None, seg=None,
     pre = run_labels_before_contact(seg)  # ~30 ms CPU at 120k points (sample_seq4)
     if step == 0:
         return ChainInputs(instance=seg.instance, ids=np.arange(seg.num_instances), num_ids=seg.num_instances,
-                           geometry=_distinct(pre, seg.instance), **base)
+                           geometry=pre, **base)
     st = load_state(dirs[step - 1])
     hist = st.history[:step]
     if len(hist) != step:
@@ -576,12 +579,7 @@ def chain_inputs(run_dir: str | Path, step: int | None = None, seg=None,
         geo = None
     return ChainInputs(instance=inst0, ids=ids0, num_ids=n_run, history=hist, added_points=st.points[sel],
                        added_colors=st.colors[sel], added_instance=st.instance[sel], stale=stale, run_share=share,
-                       geometry=None if geo is None else _distinct(geo, inst0), source=st.labels, **base)
-
-
-def _distinct(geo: np.ndarray, inst: np.ndarray) -> np.ndarray | None:
-    """``geo``, or None when it equals ``inst`` (clean depth, the paper preset: one labelling)."""
-    return None if np.array_equal(geo, inst) else geo
+                       geometry=geo, source=st.labels, **base)
 
 
 def _state_holds(geo: np.ndarray, rows: np.ndarray, seg, removed) -> bool:
