@@ -108,16 +108,7 @@ def _carried_scores(s: "Session", scores: np.ndarray) -> np.ndarray:
             return scores
         share, ids = z.share, z.labels.ids
     else:
-        hit = data._cache.get("chain_share")
-        if hit is None:  # once per chain (36 ms at 1M points)
-            from clutt3r_core.update.run_labels import run_share
-            from clutt3r_viewer.scene_step import chain_inputs_of
-
-            chain = chain_inputs_of(data, len(data.updates))
-            same = np.array_equal(chain.instance, data.seg.instance)
-            hit = data._cache["chain_share"] = (None, None) if same else (
-                run_share(chain.instance, data.seg, chain.num_ids), chain.ids)
-        share, ids = hit
+        share, ids = _chain_share(data)
         if share is None:
             return scores
     out = np.full(share.shape[0], np.nan, np.float32)
@@ -125,6 +116,23 @@ def _carried_scores(s: "Session", scores: np.ndarray) -> np.ndarray:
     out[ids] = (rows @ np.asarray(scores, np.float64)).astype(np.float32)
     out[ids[rows.sum(axis=1) == 0]] = np.nan  # rim points only: no evidence
     return out
+
+
+def _chain_share(data) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """(``update.run_labels.run_share`` of the labelling the update chain of ``data`` was computed
+    from, the chain's ids) (``scene_step.chain_inputs_of``), (None, None) when its ids are the run's.
+    Once per chain here, not in ``chain_inputs_of`` (``ChainInputs.run_share``): 36 ms at 1M points a
+    step's scene would pay for a value the other tabs do not read."""
+    hit = data._cache.get("chain_share")
+    if hit is None:
+        from clutt3r_core.update.run_labels import run_share
+        from clutt3r_viewer.scene_step import chain_inputs_of
+
+        chain = chain_inputs_of(data, len(data.updates))  # the chain's labelling and ids, as the scenes shown
+        same = np.array_equal(chain.instance, data.seg.instance)
+        hit = data._cache["chain_share"] = (None, None) if same else (
+            run_share(chain.instance, data.seg, chain.num_ids), chain.ids)
+    return hit
 
 
 def added_instance_evidence(rq, data) -> tuple[object, frozenset[int]]:
@@ -138,16 +146,10 @@ def added_instance_evidence(rq, data) -> tuple[object, frozenset[int]]:
     from clutt3r_core.io import load_scene
     from clutt3r_core.query import corrected_evidence
     from clutt3r_core.query.added import added_instance_evidence as describe
-    from clutt3r_viewer.scene_step import chain_inputs_of
 
-    base, seg = rq.instances, data.seg
-    chain = chain_inputs_of(data, len(data.updates))  # the chain's labelling and ids, as the scenes shown
-    if not np.array_equal(chain.instance, seg.instance):
-        from clutt3r_core.update.run_labels import run_share
-
-        # once per chain here, not in chain_inputs_of (ChainInputs.run_share): 36 ms at 1M points
-        # a step's scene would pay for a value the other tabs do not read
-        share = run_share(chain.instance, seg, chain.num_ids)
+    base = rq.instances
+    share = _chain_share(data)[0]
+    if share is not None:
         base = corrected_evidence(base, share, rq.evidence.label_embeddings is not None)
     adds = [(a.instance, u.frame, a.mask_id) for u in data.updates if u.result is not None
             for a in u.result.added if a.mask_id >= 0]
