@@ -7,35 +7,22 @@ clicks; the dropdown choices are set on the server (what a dropdown pick sends).
 
 from __future__ import annotations
 
-import shutil
-
 import numpy as np
 import pytest
 
 from clutt3r_viewer.edit import option_id
 from clutt3r_viewer.panels.edit import EditPanel
 from clutt3r_viewer.panels.grasps import GraspsPanel
-from tests.viewer.conftest import free_port
 from tests.viewer.test_browser import _open, _tab, _wait, browser  # noqa: F401 (fixture)
+from tests.viewer.test_edit_browser import edit_app  # noqa: F401 (fixture: the viewer on a copy of the run)
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
-
-
-@pytest.fixture
-def edit_app(tiny_run_dir, tmp_path):
-    import clutt3r_viewer
-
-    run = tmp_path / "run"
-    shutil.copytree(tiny_run_dir, run)
-    a = clutt3r_viewer.start(run, port=free_port())
-    yield a
-    a.stop()
 
 
 def test_merge_in_the_edit_tab_then_plan_grasps_on_the_merged_instance(browser, edit_app, artifacts):  # noqa: F811
     from clutt3r_core.segmentation.refine import run_labels_before_contact
 
-    app = edit_app
+    app, _ = edit_app
     seg = app.data.seg
     counts = np.bincount(seg.instance[seg.instance >= 0], minlength=seg.num_instances)
     a, b = (int(k) for k in np.argsort(-counts)[-2:])  # two small ones (the hand can hold them)
