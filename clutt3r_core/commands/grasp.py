@@ -39,8 +39,10 @@ from clutt3r_core.grasping.antipodal import AntipodalConfig
 __all__ = ["grasp_command"]
 
 
-def _target_from_query(run: Path, text: str, scene: Path | None, step: int | None = None) -> tuple[int, str]:
-    """(instance id, note) for a text query through the language backend (clutt3r_core.query)."""
+def _target_from_query(run: Path, text: str, scene: Path | None, step: int | None = None, seg=None):
+    """(instance id, note, the ``query.RunQuery``) for a text query through the language backend
+    (clutt3r_core.query); the grasp plans in the query's scene (its ``scene`` after updates, its
+    ``labelling`` at step 0), so the id it picked is the one planned, and neither is built twice."""
     from clutt3r_core.errors import Clutt3rError
 
     hint = "pick the instance by id instead: clutt3r grasp RUN --instance K (ids in the viewer or instances.npz)"
@@ -51,14 +53,14 @@ def _target_from_query(run: Path, text: str, scene: Path | None, step: int | Non
     # Re-raised typed (not SystemExit) so the CLI prints one line with status 2 and --debug works
     # (issue 14); the hint is kept. A damaged run fails earlier, in load_run, naming its file.
     try:
-        rq = RunQuery.open(run, scene=scene, progress=True, step=step)
+        rq = RunQuery.open(run, scene=scene, progress=True, step=step, seg=seg)
         res = rq.query(text)
     except Clutt3rError as e:
         raise Clutt3rError(f"the query could not be answered: {e}; {hint}") from e
     if res.target is None:
         raise SystemExit(f"clutt3r grasp: the run has no instance for '{text}' to name")
     note = "" if res.confident else f"the query '{text}' matches instance {res.target} only weakly"
-    return int(res.target), note
+    return int(res.target), note, rq
 
 
 def grasp_command(
@@ -109,12 +111,13 @@ def grasp_command(
     seg = load_run(run)
     notes: list[str] = []
     corrections = None  # the correction log state the target's ids came from (grasps.json "corrections")
+    rq = None
     if query:
-        instance, note = _target_from_query(run, query, scene, step)
+        instance, note, rq = _target_from_query(run, query, scene, step, seg)
         if note:
             notes.append(note)
     if step > 0:
-        sa = scene_now(run, step, seg, scene)
+        sa = rq.scene if rq is not None else scene_now(run, step, seg, scene)
         req = sa.grasp_request(instance, voxel_size=run_voxel_size(seg))  # a removed instance: names its update
         corrections = sa.corrections  # the log state the chain's ids came from (stale or not)
         if sa.stale:  # corrections made after the updates: their ids are the older labelling's
@@ -126,7 +129,7 @@ def grasp_command(
         from clutt3r_core.update.run_labels import step_zero_labels
 
         # the Edit tab's ids (the correction log's edits in effect), as the query above ranked them
-        labels = step_zero_labels(seg, run)
+        labels = rq.labelling if rq is not None and rq.labelling is not None else step_zero_labels(seg, run)
         try:
             labels.check_target(instance)
         except SceneError as e:

@@ -123,6 +123,7 @@ class RunQuery:
         use_cache: bool = True,
         step: int | None = None,
         corrections: bool = True,
+        seg=None,
     ) -> "RunQuery":
         """Open a run folder; compute (with a progress bar if asked) and cache its evidence
         when ``RUN/query_cache.npz`` is absent or stale.
@@ -139,6 +140,7 @@ class RunQuery:
                 merge's evidence mixes its parts', ``corrected_evidence``), as the update chain
                 does after step 0. False: the run's own ids whatever its log (rows = run
                 instances, for the update's re-embedding, which mixes them itself).
+            seg: the run's ``pipeline.Segmentation`` when already loaded (``clutt3r grasp QUERY``).
         """
         from clutt3r_core.update.scene_after import resolve_step
 
@@ -151,7 +153,7 @@ class RunQuery:
             raise SceneFileError(missing_run_file(run_dir), "missing: not a clutt3r run folder")
         step = resolve_step(run_dir, step)  # a bad --step fails before any model loads
         g = grounder if grounder is not None else create_grounder(backend)
-        seg = load_run(run_dir)
+        seg = load_run(run_dir) if seg is None else seg
         key = run_cache_key(run_dir, g.name, str(getattr(g, "version", "")))
         ev = load_node_evidence(run_dir / CACHE_NAME, key) if use_cache else None
 
