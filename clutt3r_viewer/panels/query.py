@@ -178,9 +178,10 @@ class QueryPanel(Panel):
         self.result = gui.add_markdown(f"_text embedder: `{name}`_")
 
     def refresh(self, s: "Session", change: Change) -> None:
-        # another scene shown (an update chosen) or an edit (the ids at step 0): rank the instances
+        # another scene shown (an update chosen), or an edit while the run itself is shown (the ids at
+        # step 0; a scene after updates has the chain's ids, which no edit changes): rank the instances
         # of that scene again, off the session's lock (run_query takes it and broadcasts its own change)
-        if change & (Change.SCENE | Change.LABELS) and s.state.query:
+        if s.state.query and (change & Change.SCENE or change & Change.LABELS and s.scene_step() == 0):
             threading.Thread(target=self.run_query, args=(s, s.state.query, False), daemon=True).start()
 
     # -- the language backend -----------------------------------------------------------------

@@ -151,3 +151,30 @@ def test_the_run_embedders_scores_follow_the_edits_and_the_corrected_chain(tiny_
     assert np.isfinite(sc[k]) and np.isfinite(sc[a]) and np.isnan(sc[b]), panel.result.content
     share = run_share(ann.current.instance, seg, ann.current.num_instances)
     np.testing.assert_allclose(sc[k], share[k] @ raw, rtol=1e-5)
+
+
+def test_an_edit_ranks_the_last_query_again_only_while_the_run_itself_is_shown(monkeypatch):
+    """After updates the scene shown has the chain's ids, which no edit changes: an edit there does not
+    run the query again (it did, for the same result); another scene shown or an edit at step 0 does."""
+    from clutt3r_viewer.panels.base import Change
+
+    class Now:  # the refresh's thread, run at once
+        def __init__(self, target, args, daemon):
+            self.target, self.args = target, args
+
+        def start(self):
+            self.target(*self.args)
+
+    monkeypatch.setattr(qp.threading, "Thread", Now)
+    panel, calls, step = qp.QueryPanel(), [], {"now": 1}
+    monkeypatch.setattr(panel, "run_query", lambda s, text, show=True: calls.append((step["now"], text, show)))
+    s = SimpleNamespace(state=SimpleNamespace(query="red"), scene_step=lambda: step["now"])
+    panel.refresh(s, Change.LABELS)
+    assert calls == []
+    panel.refresh(s, Change.SCENE)
+    step["now"] = 0
+    panel.refresh(s, Change.LABELS)
+    panel.refresh(s, Change.COLOUR)
+    s.state.query = ""
+    panel.refresh(s, Change.SCENE | Change.LABELS)
+    assert calls == [(1, "red", False), (0, "red", False)]
