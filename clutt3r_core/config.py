@@ -140,11 +140,6 @@ ADDITIONS: tuple[Addition, ...] = (
     Addition("table-contact", "with the surface estimate, object points under 2 mm above the support measured around "
              "the object are left unlabelled (the update and the grasp target read the labels before it)",
              (("refine.contact_height", 0.002, 0.0),)),
-    Addition("contact-fill", "with the surface estimate, unlabelled points within 7.5 mm of an object, 4-12 mm above the "
-             "support measured around it, take its label where the views that see them put them (2 px margin) in its "
-             "masks at least half the time (the object's lowest walls, which the support rule made ground)",
-             (("refine.contact_fill_low", 0.004, 0.0), ("refine.contact_fill_high", 0.012, 0.0),
-              ("refine.contact_fill_mask_share", 0.5, 0.0), ("refine.contact_fill_mask_margin", 2, 0))),
 )
 """Every rule of ours over the paper's explicit text that changes a result, with its switch.
 Choices the text leaves open (and that both presets share) are listed in docs/paper_choices.md."""

@@ -55,9 +55,9 @@ def test_config_checks_the_height_and_presets():
     with pytest.raises(SceneError, match="contact_height"):
         RefineConfig(contact_height=0.2)  # metres, not millimetres
     # on by default since session 8 (its grasp and update costs removed: run_labels_before_contact), an
-    # addition the paper preset switches off; the fill with its mask test too (on since session 9)
+    # addition the paper preset switches off; the fill (with or without its mask test) stays off in both
     assert PRESETS["default"].refine.contact_height == 0.002 and PRESETS["paper"].refine.contact_height == 0.0
-    assert PRESETS["default"].refine.contact_fill_high == 0.012 and PRESETS["paper"].refine.contact_fill_high == 0.0
+    assert PRESETS["default"].refine.contact_fill_high == 0.0 and PRESETS["paper"].refine.contact_fill_high == 0.0
 
 
 @settings(max_examples=30, deadline=None)
