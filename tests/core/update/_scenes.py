@@ -118,3 +118,23 @@ def two_boxes_on_a_table():
     tp, tc = table_points()
     return (np.concatenate([pts, tp]), np.concatenate([cols, tc]),
             np.concatenate([inst, np.full(len(tp), -1, np.int32)]))
+
+
+def noisy_contact_run(root, seed: int):
+    """(run folder, its ``pipeline.Segmentation``, its labels before the contact rule) of a tiny
+    generated easy scene with RealSense-like depth (``seed``, 3 views at 320 x 240, 3 objects) saved
+    under ``root`` with its scene folder, segmented with the contact rule alone: the tests of the
+    labels before the rule read its cleared points (the contact fill, on by default since session 9,
+    adds points that are no pre-contact label; tests/core/segmentation/test_table_contact.py)."""
+    from clutt3r_core.config import SegmentConfig, with_fields
+    from clutt3r_core.pipeline import segment
+    from clutt3r_core.runs import save_run
+    from clutt3r_core.segmentation.refine import run_labels_before_contact
+    from clutt3r_core.synth import write_synth_scene
+    from clutt3r_core.synth.generator import SynthConfig, generate_scene
+
+    scene = generate_scene(SynthConfig(seed=seed, preset="easy", views=3, width=320, height=240, n_objects=3,
+                                       depth_noise="realsense"), progress=False)
+    seg = segment(scene, with_fields(SegmentConfig(), {"refine.contact_fill_high": 0.0}))
+    run = save_run(seg, root / "run", scene_root=write_synth_scene(scene, root / "scene", contact_sheet=False))
+    return run, seg, run_labels_before_contact(seg)

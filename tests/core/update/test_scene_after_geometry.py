@@ -25,26 +25,12 @@ from hypothesis import given, settings, strategies as st
 
 from clutt3r_core.annotations import Annotations, Merge
 from clutt3r_core.errors import SceneError
+from tests.core.update._scenes import noisy_contact_run
 
 
 @pytest.fixture(scope="module")
 def base(tmp_path_factory):
-    from clutt3r_core.pipeline import segment
-    from clutt3r_core.runs import save_run
-    from clutt3r_core.segmentation.refine import run_labels_before_contact
-    from clutt3r_core.synth import write_synth_scene
-    from clutt3r_core.synth.generator import SynthConfig, generate_scene
-
-    root = tmp_path_factory.mktemp("sa_geo")
-    scene = generate_scene(SynthConfig(seed=11, preset="easy", views=3, width=320, height=240, n_objects=3,
-                                       depth_noise="realsense"), progress=False)
-    # the contact alone: these tests read its cleared points (the contact fill, on by default since
-    # session 9, adds points that are no pre-contact label; tests/core/segmentation/test_table_contact.py)
-    from clutt3r_core.config import SegmentConfig, with_fields
-
-    seg = segment(scene, with_fields(SegmentConfig(), {"refine.contact_fill_high": 0.0}))
-    run = save_run(seg, root / "run", scene_root=write_synth_scene(scene, root / "scene", contact_sheet=False))
-    pre = run_labels_before_contact(seg)
+    run, seg, pre = noisy_contact_run(tmp_path_factory.mktemp("sa_geo"), seed=11)
     cleared = np.bincount(pre[(pre >= 0) & (seg.instance < 0)], minlength=seg.num_instances)
     assert (cleared > 0).sum() >= 2, f"the contact rule cleared points of too few instances ({cleared})"
     return run, seg, pre, cleared
