@@ -109,32 +109,13 @@ def chain_geometry(seg, instance: np.ndarray | None = None, pre: np.ndarray | No
     in the ids of a chain's labelling ``instance`` ((N,) int, None: the run's own), the geometry
     its update state holds (``state.state_from_segmentation``) and its scenes move, remove and
     grasp by (``ChainInputs.geometry``). The one function ``chain_inputs`` and the viewer's
-    ``scene_step.chain_inputs_of`` call.
-
-    The run's own ids: ``refine.run_labels_before_contact(seg)`` (``pre``: it, when already
-    computed). Corrected ids: ``run_labels.corrected_geometry_labels``, the fused points mapped as
-    the state's step 0 maps them (over the fused points only: ``run_labels.fused_count``), the rim
-    voxels, which the state does not hold, as the grasp target at step 0 maps them (over the whole
-    cloud). ``corrected``: whether the state was built from a corrected labelling (its "labels"
+    ``scene_step.chain_inputs_of`` call: ``run_labels.geometry_labels``, the mapping step 0's grasp
+    target reads too (``StepZeroLabels.geometry``), so step 0 and every step after agree point for
+    point. ``corrected``: whether the state was built from a corrected labelling (its "labels"
     record has log entries); None: when ``instance`` differs from the run's labels."""
-    from clutt3r_core.update.run_labels import corrected_geometry_labels, fused_count
+    from clutt3r_core.update.run_labels import geometry_labels
 
-    if pre is None:
-        from clutt3r_core.segmentation.refine import run_labels_before_contact
-
-        pre = run_labels_before_contact(seg)
-    inst = np.asarray(seg.instance if instance is None else instance, np.int32)
-    if len(inst) != len(seg.points) or len(pre) != len(seg.points):
-        raise SceneError(f"chain_geometry: labels of {len(inst)} / {len(pre)} points for a run of {len(seg.points)}")
-    if corrected is None:
-        corrected = not np.array_equal(inst, seg.instance)
-    if not corrected:
-        return np.array(pre, np.int32)
-    n_all, n = len(inst), fused_count(seg)
-    out = corrected_geometry_labels(seg, inst, n_all, pre)
-    if n < n_all:  # a cleared fused point goes where the state put it (its nearest fused source)
-        out[:n] = corrected_geometry_labels(seg, inst, n, pre)
-    return out
+    return geometry_labels(seg, instance, pre, corrected)
 
 
 @dataclass(frozen=True, eq=False)

@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from clutt3r_core.annotations import Annotations, Merge
+from clutt3r_core.annotations import Annotations, Merge, Split
 from clutt3r_core.errors import SceneError
 from tests.core.update._scenes import noisy_contact_run
 
@@ -225,3 +225,30 @@ def test_build_scene_after_moves_and_removes_by_the_geometry(seed, n_updates):
     for i in sa.present.tolist():
         np.testing.assert_array_equal(sa.grasp_target(i), sa.geometry == i)
         assert np.array_equal(sa.geometry, geo[~sa.gone])
+
+
+@pytest.mark.parametrize("share", [0.01, 0.05])
+def test_a_split_gives_one_geometry_at_step_zero_and_after_updates(run, base, share):
+    """Split off an instance's lowest points (the Edit tab): the step-0 grasp target's labels
+    (``StepZeroLabels.geometry``) are the update state's labels of the fused points and the scene's
+    after an update, point for point (reviewer, session 9: on 2344491..8576217 one fused point of
+    seed 11 was I3 at step 0 and I2 in the state, the step-0 map searched the rim voxels too)."""
+    from clutt3r_core.update.run_labels import fused_count, step_zero_labels
+    from clutt3r_core.update.scene_after import chain_inputs
+    from clutt3r_core.update.state import state_from_run
+
+    _, seg, pre, cleared = base
+    k = 2
+    own = np.flatnonzero(seg.instance == k)
+    low = own[np.argsort(seg.points[own, 2], kind="stable")[:max(1, int(round(share * len(own))))]]
+    with Annotations.open(run, segmentation=seg, author="test") as ann:
+        ann.apply_op(Split(points=tuple(low.tolist()), source=k))
+    z = step_zero_labels(seg, run)
+    assert z.corrected
+    n = fused_count(seg)
+    s0 = state_from_run(run)
+    np.testing.assert_array_equal(z.geometry[:n], s0.instance)  # the state's rows are the fused points, in order
+    _chain(run)  # an update that changes nothing: the scene after it holds step 0's geometry
+    inp = chain_inputs(run, 1, seg=seg)
+    assert inp.geometry is not inp.instance  # the state's labels were reproduced (else it falls back)
+    np.testing.assert_array_equal(inp.geometry, z.geometry)

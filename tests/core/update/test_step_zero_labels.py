@@ -223,11 +223,12 @@ from hypothesis import strategies as st  # noqa: E402
 
 
 @settings(max_examples=40, deadline=None)
-@given(st.integers(2, 6), st.integers(0, 10_000), st.booleans())
-def test_merged_geometry_is_the_union_of_the_parts_pre_contact_points(k, seed, delete_one):
+@given(st.integers(2, 6), st.integers(0, 10_000), st.booleans(), st.integers(0, 20))
+def test_merged_geometry_is_the_union_of_the_parts_pre_contact_points(k, seed, delete_one, rim):
     """For any labelling whose contact rule cleared some points (each instance keeps one), merging
     ids into another gives each id the pre-contact points of the ids now in it, and a deleted id
-    none: ``corrected_geometry_labels`` is the pre-contact labels mapped through the edits."""
+    none: ``corrected_geometry_labels`` is the pre-contact labels mapped through the edits, whatever
+    the number of rim voxels (the last ``rim`` points; fused points are mapped among the fused ones)."""
     from types import SimpleNamespace
 
     from clutt3r_core.corrections import BaseLabels, apply
@@ -238,7 +239,8 @@ def test_merged_geometry_is_the_union_of_the_parts_pre_contact_points(k, seed, d
     pre = rng.integers(-1, k, n).astype(np.int32)
     pre[:k] = np.arange(k)  # every id has points
     run = np.where((rng.random(n) < 0.35) & (np.arange(n) >= k), -1, pre).astype(np.int32)  # the contact's
-    seg = SimpleNamespace(points=rng.random((n, 3)).astype(np.float32), instance=run)
+    seg = SimpleNamespace(points=rng.random((n, 3)).astype(np.float32), instance=run,
+                          trace=SimpleNamespace(surface=SimpleNamespace(rim=rim)))
     ids = rng.permutation(k)
     into, merged = int(ids[0]), tuple(int(x) for x in ids[1:1 + rng.integers(1, k)])
     ops = [Merge(into=into, other=merged[0], others=merged[1:])]
