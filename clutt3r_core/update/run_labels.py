@@ -68,6 +68,12 @@ class LabelSource:
         return {"log": LOG_NAME, "entries": self.entries, "active_edits": self.active_edits,
                 "labels_sha256": self.labels_sha256, "categories": {str(k): t for k, t in self.categories}}
 
+    def record(self) -> dict | None:
+        """What grasps.json and ``clutt3r query --json`` record as "corrections": ``to_json()``, or None
+        with no log entries (the run as segmented). The one record of step 0
+        (``StepZeroLabels.to_json``) and of the scenes after updates (``SceneAfter.corrections``)."""
+        return self.to_json() if self.entries else None
+
     @staticmethod
     def from_json(d: dict) -> "LabelSource":
         cats = tuple(sorted((int(k), str(t)) for k, t in (d.get("categories") or {}).items()))
@@ -466,8 +472,8 @@ class StepZeroLabels:
                 f"{src.active_edits} edit(s) in effect)")
 
     def to_json(self) -> dict | None:
-        """``LabelSource.to_json`` of the labelling (what grasps.json records), None without a log."""
-        return self.source.to_json() if self.source.entries else None
+        """``LabelSource.record`` of the labelling (what grasps.json records), None without a log."""
+        return self.source.record()
 
 
 def step_zero_labels(seg, run_dir: str | Path | None = None, annotations=None,

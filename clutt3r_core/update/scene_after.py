@@ -54,7 +54,7 @@ from clutt3r_core.errors import Clutt3rError, SceneError, SceneFileError
 
 __all__ = ["SceneAfter", "ChainInputs", "build_scene_after", "chain_inputs", "scene_after", "chain_length",
            "chain_geometry", "compose_motions", "resolve_step", "update_docs", "added_masks", "post_camera",
-           "post_cameras", "corrections_record", "post_eyes", "oriented_normals", "ADDED_NORMAL_KNN"]
+           "post_cameras", "post_eyes", "oriented_normals", "ADDED_NORMAL_KNN"]
 
 ADDED_NORMAL_KNN = 16
 """ours: neighbours of the PCA normals of added instances (the viewer's Grasps tab uses the same)."""
@@ -94,13 +94,6 @@ def oriented_normals(points: np.ndarray, eye: np.ndarray | None, knn: int = ADDE
     e = np.asarray(eye, np.float64) if eye is not None else p.mean(axis=0) + [0.0, 0.0, 1.0]
     n[np.einsum("ij,ij->i", n, e - p) < 0] *= -1
     return n
-
-
-def corrections_record(source) -> dict | None:
-    """What grasps.json records as "corrections" of a chain's ``run_labels.LabelSource`` (None: not
-    recorded): ``source.to_json()``, or None when it has no log entries (the run as segmented), as
-    ``StepZeroLabels.to_json`` at step 0."""
-    return source.to_json() if source is not None and source.entries else None
 
 
 def chain_geometry(seg, instance: np.ndarray | None = None, pre: np.ndarray | None = None,
@@ -322,10 +315,10 @@ class SceneAfter:
 
     @property
     def corrections(self) -> dict | None:
-        """``LabelSource.to_json`` of the correction log state the chain's ids came from (what
+        """``LabelSource.record`` of the correction log state the chain's ids came from (what
         grasps.json records as "corrections", as at step 0: ``StepZeroLabels.to_json``); None when
         the chain was computed from the run as segmented (no log entries) or does not record it."""
-        return corrections_record(self.source)
+        return None if self.source is None else self.source.record()
 
     @property
     def label(self) -> str:

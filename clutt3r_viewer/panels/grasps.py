@@ -202,11 +202,10 @@ class GraspsPanel(Panel):
         """The log state the update chain's ids came from (its state.json "labels"), as ``clutt3r grasp
         --step`` records it (``SceneAfter.corrections``); None without a run folder or a log."""
         from clutt3r_core.update.run_labels import chain_source
-        from clutt3r_core.update.scene_after import corrections_record
 
         run_dir = getattr(getattr(s.app, "annotations", None), "run_dir", None)
         rec = chain_source(run_dir) if run_dir is not None else None
-        return None if rec is None else corrections_record(rec[1])
+        return None if rec is None or rec[1] is None else rec[1].record()
 
     def _draw(self, s: "Session") -> None:
         g = self._grasps

@@ -281,3 +281,15 @@ def test_step_zero_of_an_updated_run_reads_the_corrections_now(run, base):
     np.testing.assert_array_equal(request_from_run(run, a, step=0)[0].target, np.isin(pre, [a, b]))
     r1q = RunQuery.open(run, grounder=FakeGrounder(), step=1).query("red thing")
     assert c in r1q.ranking and b not in r1q.ranking  # the chain's labelling (stale: said by the commands)
+
+
+def test_one_corrections_record_at_step_zero_and_after_updates():
+    """``LabelSource.record`` is the "corrections" of grasps.json everywhere: None for the run as
+    segmented, ``to_json`` with log entries (``StepZeroLabels.to_json`` and ``SceneAfter.corrections``
+    both read it; review 11: they were two copies)."""
+    from clutt3r_core.update.run_labels import LabelSource
+
+    assert LabelSource(0, 0, "0" * 64).record() is None
+    src = LabelSource(3, 2, "a" * 64, ((1, "mug"),))
+    assert src.record() == src.to_json() and src.record()["categories"] == {"1": "mug"}
+    assert LabelSource.from_json(src.record()) == src
