@@ -124,7 +124,7 @@ def chain_inputs_of(data, step: int):
         added_colors=cat([a.colors for a in now], (0, 3), np.uint8),
         added_instance=cat([np.full(len(a.points), a.instance, np.int32) for a in now], 0, np.int32),
         eyes={u.frame: u.camera.T_world_camera[:3, 3] for u in ups if u.camera is not None},
-        geometry=_chain_geometry(data, inst))
+        geometry=_held_geometry(data, ups, inst, hist))
 
 
 def _pre_contact(data) -> np.ndarray:
@@ -137,14 +137,34 @@ def _pre_contact(data) -> np.ndarray:
     return pre
 
 
-def _chain_geometry(data, inst: np.ndarray) -> np.ndarray:
-    """The core's ``chain_geometry`` of the labelling ``inst``, once per labelling (the chain's, the run's)."""
+def _chain_geometry(data, inst: np.ndarray, corrected: bool | None = None) -> np.ndarray:
+    """The core's ``chain_geometry`` of the labelling ``inst``, once per labelling (the chain's, the run's).
+    ``corrected``: the chain's state was built from a corrected labelling (None: ``inst`` differs from the run's)."""
     from clutt3r_core.update.scene_after import chain_geometry
 
     hit = data._cache.get("chain_geometry")
-    if hit is None or not (hit[0] is inst or np.array_equal(hit[0], inst)):
-        hit = data._cache["chain_geometry"] = (inst, chain_geometry(data.seg, inst, _pre_contact(data)))
-    return hit[1]
+    if hit is None or hit[1] != corrected or not (hit[0] is inst or np.array_equal(hit[0], inst)):
+        hit = data._cache["chain_geometry"] = (inst, corrected, chain_geometry(data.seg, inst, _pre_contact(data),
+                                                                               corrected))
+    return hit[2]
+
+
+def _held_geometry(data, ups, inst: np.ndarray, hist) -> np.ndarray | None:
+    """The geometry of the scene after the updates ``ups`` as ``update.chain_inputs`` decides it: the
+    core's ``chain_geometry`` (corrected when the chain's "labels" record has log entries, as the state's
+    step 0 was built), kept only when the state after them holds it (``scene_after.held_geometry``, by
+    the digest the loader keeps, ``UpdateFrame.state_rows_sha256``); None: a chain computed by an older
+    version keeps the scene it always had (one labelling). At step 0 (no ``ups``) the run's own."""
+    if not ups:
+        return _chain_geometry(data, inst)
+    from clutt3r_core.update.scene_after import held_geometry
+
+    src = ups[0].labels
+    geo = _chain_geometry(data, inst, src is not None and src.entries > 0)
+    rows = ups[-1].state_rows_sha256
+    if rows is None:  # frames not read from a saved chain (no state.npz): nothing to check against
+        return geo
+    return held_geometry(geo, data.seg, [k for h in hist for k in h.removed], rows)
 
 
 def scene_after_of(data, step: int):

@@ -76,6 +76,12 @@ class UpdateFrame:
         added_now: the instances this update and the earlier ones added and did not remove, as
             the state saved after it holds them (moved by the updates since; the viewer builds
             the scene after it from them, ``update.scene_after.ChainInputs.added_points``).
+        labels: the chain's ``state.json`` "labels" record (``run_labels.LabelSource``; None: not
+            recorded, chains written before session 7), as ``scene_after.chain_inputs`` reads it.
+        state_rows_sha256: ``run_labels.labels_sha256`` of the run rows of the state saved after this
+            update (its labels less the added instances', in order), or None when unknown: what
+            ``scene_after.held_geometry`` checks (a chain written by an older version keeps its
+            scene), so the viewer decides as ``clutt3r grasp --step`` without holding the rows.
     """
 
     frame: int
@@ -86,6 +92,8 @@ class UpdateFrame:
     result: UpdateResult | None = None
     instance0: np.ndarray | None = None
     added_now: tuple[NewInstance, ...] = ()
+    labels: object | None = None
+    state_rows_sha256: str | None = None
 
 
 @runtime_checkable

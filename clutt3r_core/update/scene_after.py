@@ -54,7 +54,7 @@ from clutt3r_core.errors import Clutt3rError, SceneError, SceneFileError
 
 __all__ = ["SceneAfter", "ChainInputs", "build_scene_after", "chain_inputs", "scene_after", "chain_length",
            "chain_geometry", "compose_motions", "resolve_step", "update_docs", "added_masks", "post_camera",
-           "post_cameras", "post_eyes", "oriented_normals", "ADDED_NORMAL_KNN"]
+           "post_cameras", "post_eyes", "held_geometry", "state_rows", "oriented_normals", "ADDED_NORMAL_KNN"]
 
 ADDED_NORMAL_KNN = 16
 """ours: neighbours of the PCA normals of added instances (the viewer's Grasps tab uses the same)."""
@@ -545,27 +545,38 @@ def chain_inputs(run_dir: str | Path, step: int | None = None, seg=None,
     if (run_dir / LOG_NAME).is_file():  # always there for a corrected chain (run_labels above needs it)
         stale = stale_note(run_dir, seg)
     # the state holds the added instances still present, moved by the later updates
-    sel = np.isin(st.instance, [k for h in hist for k in h.added])
-    geo = chain_geometry(seg, inst0, pre, corrected)
-    if not _state_holds(geo, st.instance[~sel], seg, [k for h in hist for k in h.removed]):
-        # a chain computed by an older version (its state reads the contact rule's labels, or an
-        # earlier recompute of the labels before it): its scene is the one it always was
-        geo = None
+    added_ids = [k for h in hist for k in h.added]
+    sel = np.isin(st.instance, added_ids)
+    geo = held_geometry(chain_geometry(seg, inst0, pre, corrected), seg, [k for h in hist for k in h.removed],
+                        state_rows(st.instance, added_ids))
     return ChainInputs(instance=inst0, ids=ids0, num_ids=n_run, history=hist, added_points=st.points[sel],
                        added_colors=st.colors[sel], added_instance=st.instance[sel], stale=stale, run_share=share,
                        geometry=geo, source=st.labels, **base)
 
 
-def _state_holds(geo: np.ndarray, rows: np.ndarray, seg, removed) -> bool:
-    """Whether a saved state's run rows (``rows``: its labels less the added instances', in order)
-    are the run's fused points labelled ``geo`` less the removed instances' (``state.apply_update``
-    keeps the order and drops by these labels): the state's own geometry, exactly. An O(N) check
-    that the labels recomputed here are the ones the chain moved and removed."""
-    from clutt3r_core.update.run_labels import fused_count
+def held_geometry(geo: np.ndarray, seg, removed, rows: np.ndarray | str) -> np.ndarray | None:
+    """``geo`` when a saved state's run rows are the run's fused points labelled ``geo`` less the
+    removed instances' (``state.apply_update`` keeps the order and drops by these labels): the
+    state's own geometry, exactly; else None (a chain computed by an older version: its state reads
+    the contact rule's labels or an earlier recompute of the labels before it, and its scene is the
+    one it always was, one labelling). The one decision ``chain_inputs`` and the viewer's
+    ``scene_step.chain_inputs_of`` make, O(N).
+
+    ``rows``: the state's labels less the added instances', in order ((M,) int), or their
+    ``run_labels.labels_sha256`` (the viewer's loader keeps the digest, ``UpdateFrame.state_rows_sha256``)."""
+    from clutt3r_core.update.run_labels import fused_count, labels_sha256
 
     g = geo[:fused_count(seg)]
     kept = g[~(np.isin(g, list(removed)) & (g >= 0))]
-    return np.array_equal(kept, rows)
+    same = labels_sha256(kept) == rows if isinstance(rows, str) else np.array_equal(kept, rows)
+    return geo if same else None
+
+
+def state_rows(instance: np.ndarray, added) -> np.ndarray:
+    """(M,) the run rows of a saved state's labels ``instance``: less the points of the ids the
+    chain's updates added (``added``, those removed since included), in order (``held_geometry``)."""
+    instance = np.asarray(instance)
+    return instance[~np.isin(instance, list(added))]
 
 
 def scene_after(run_dir: str | Path, step: int | None = None, seg=None,

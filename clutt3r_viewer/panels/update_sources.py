@@ -48,16 +48,26 @@ __all__ = ["load_update_frames", "update_pose_events", "UpdateSceneLayer", "GHOS
 
 
 
-def _added_now(folder: Path, ids: set[int], mask_of: dict[int, int]) -> tuple[NewInstance, ...]:
-    """The instances ``ids`` as the state saved in ``folder`` holds them (``UpdateFrame.added_now``;
-    ``NewInstance.embedding`` from the state: a query in the run's space ranks them by it)."""
-    if not ids or not (folder / "state.npz").is_file():
-        return ()
+def _added_now(folder: Path, ids: set[int], mask_of: dict[int, int],
+               added: set[int]) -> tuple[tuple[NewInstance, ...], str | None]:
+    """(the instances ``ids`` as the state saved in ``folder`` holds them (``UpdateFrame.added_now``;
+    ``NewInstance.embedding`` from the state: a query in the run's space ranks them by it), the
+    digest of its run rows (``UpdateFrame.state_rows_sha256``; ``added``: every id the chain added
+    so far), None without a state.npz)."""
+    from clutt3r_core.update.run_labels import labels_sha256
+    from clutt3r_core.update.scene_after import state_rows
+
+    if not (folder / "state.npz").is_file():
+        return (), None
     with np.load(folder / "state.npz") as z:  # each z[key] reads the array from the archive again
-        inst, pts, cols, sid, emb = z["instance"], z["points"], z["colors"], z["instance_ids"], z["embeddings"]
+        inst = z["instance"]
+        rows = labels_sha256(state_rows(inst, added))
+        if not ids:
+            return (), rows
+        pts, cols, sid, emb = z["points"], z["colors"], z["instance_ids"], z["embeddings"]
     e_of = lambda k: emb[int(np.searchsorted(sid, k))] if emb.shape[1] and k in sid else None  # noqa: E731
     return tuple(NewInstance(k, mask_of.get(k, -1), pts[inst == k], cols[inst == k], e_of(k)) for k in sorted(ids)
-                 if np.any(inst == k))
+                 if np.any(inst == k)), rows
 
 
 def _result(folder: Path, doc: dict, hw: tuple[int, int], now: tuple[NewInstance, ...]) -> UpdateResult:
@@ -125,7 +135,7 @@ def load_update_frames(run_dir: Path | None, scene: Scene | None) -> tuple[Updat
         added |= {int(r["instance"]) for r in doc["instances"] if r["status"] == "new"}
         mask_of.update({int(m["instance"]): int(m["mask"]) for m in doc.get("new_masks", [])
                         if m.get("instance") is not None})
-        now = _added_now(d, added - removed, mask_of)
+        now, rows = _added_now(d, added - removed, mask_of, added)
         view = None
         if scene is not None:
             try:
@@ -140,7 +150,7 @@ def load_update_frames(run_dir: Path | None, scene: Scene | None) -> tuple[Updat
         pi = np.where(np.isin(instance0, list(removed)), -1, instance0).astype(np.int32)
         out.append(UpdateFrame(frame=frame, rgb=rgb, camera=cam, point_instance=pi,
                                text=_text(doc), result=_result(d, doc, hw, now), instance0=instance0,
-                               added_now=now))
+                               added_now=now, labels=src, state_rows_sha256=rows))
     return tuple(out)
 
 
