@@ -285,7 +285,7 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
         # ours (issue 13): fragment groups join the instance that won their masks' footprint
         grouping, vote = absorb_fragments(grouping, vote, occupancy, sv.counts, s_spat, s_sem, revote, config.refine)
         if config.vote.span_cover > 0:
-            # ours (session 9), off by default: a mask spanning another group's footprint, unconfirmed
+            # ours (session 9; 0 = off): a mask spanning another group's footprint, unconfirmed
             # by its own group, does not vote there (``segmentation.span``); after the absorption, so
             # that a fragment of the mask's own object has joined its group first
             groups = grouping.groups

@@ -193,8 +193,14 @@ class ViewerData:
         if key not in self._cache:
             tr = self.trace
             groups = tuple(tuple(g) for g in tr.groups_at(n_events))
+            occ = tr.occupancy
+            if n_events == self.num_events and tr.vote.span_cleared is not None:
+                # the final groups' vote ignored the spanning masks' occupancies (core segmentation.span)
+                from clutt3r_core.segmentation.span import cleared_occupancy
+
+                occ = cleared_occupancy(occ, tr.vote.span_cleared)
             vote = supervoxel_vote(
-                groups, tr.occupancy, self.sv_count, self.seg.sv_support,
+                groups, occ, self.sv_count, self.seg.sv_support,
                 np.nan_to_num(tr.s_spatial, nan=0.0), len(tr.frames), _vote_config(tr),
             )
             first = np.array([g[0] for g in groups] or [0], np.int64)

@@ -111,12 +111,14 @@ def spanning_votes(
     nodes = np.flatnonzero((member >= 0) & np.asarray(eligible, bool)[np.maximum(member, 0)])
     if not len(nodes):
         return _empty()
-    occ_n = occ[nodes]
-    f_i = (occ_n >= occupied) & (pts > 0)[None, :]  # (n, K) super-voxels each mask occupies
+    # only the non-support super-voxels some voting mask puts occupancy on can be in a footprint
+    live = np.flatnonzero((pts > 0) & (occ[nodes].max(axis=0) > 0))
+    occ_n, pts = occ[np.ix_(nodes, live)], pts[live]
+    f_i = occ_n >= occupied  # (n, C) super-voxels each mask occupies
     onehot = np.zeros((g, len(nodes)), np.float32)  # (G, n) group membership (np.add.at is slow on rows)
     onehot[member[nodes], np.arange(len(nodes))] = 1.0
     gsum = onehot @ occ_n
-    fb = (gsum >= occupied) & (pts > 0)[None, :] & np.asarray(eligible, bool)[:, None]  # (G, K) footprints
+    fb = (gsum >= occupied) & np.asarray(eligible, bool)[:, None]  # (G, C) footprints
     count = np.rint(onehot @ f_i.astype(np.float32)).astype(np.int64)
     confirmed = f_i & (count[member[nodes]] - f_i >= 1)  # another mask of the same group occupies it
     fb_pts = fb.astype(np.float64) @ pts  # (G,)
@@ -132,9 +134,11 @@ def spanning_votes(
         return _empty()
     pairs = []
     for r, b in zip(rows.tolist(), cols.tolist()):
-        sv = np.flatnonzero(f_i[r] & fb[b] & ~confirmed[r])
+        sv = live[f_i[r] & fb[b] & ~confirmed[r]]
         pairs.append(np.stack([np.full(len(sv), nodes[r]), sv], axis=1))
-    cleared = np.unique(np.concatenate(pairs).astype(np.int32), axis=0) if pairs else np.zeros((0, 2), np.int32)
+    both = np.concatenate(pairs).astype(np.int64)
+    flat = np.unique(both[:, 0] * k + both[:, 1])  # sorted by node, then super-voxel
+    cleared = np.stack([flat // k, flat % k], axis=1)
     return SpanningVotes(
         node=nodes[rows].astype(np.int32),
         group=member[nodes[rows]].astype(np.int32),

@@ -1,4 +1,4 @@
-"""Spanning candidate masks (``segmentation.span``, ours, session 9; off by default)."""
+"""Spanning candidate masks (``segmentation.span``, ours, session 9; on by default, off in the paper preset)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from clutt3r_core.config import ADDED_AFTER_V1, SegmentConfig, config_from_json, config_to_json
+from clutt3r_core.config import ADDED_AFTER_V1, PRESETS, SegmentConfig, config_from_json, config_to_json
 from clutt3r_core.errors import SceneError
 from clutt3r_core.segmentation.span import cleared_occupancy, span_revote, spanning_votes
 from clutt3r_core.segmentation.vote import VoteConfig, supervoxel_vote
@@ -113,12 +113,13 @@ def test_config_is_checked_and_old_configs_load_with_it_off(tmp_path):
         VoteConfig(span_cover=-0.1)
     with pytest.raises(SceneError):
         VoteConfig(span_confirm=0.0)
-    assert SegmentConfig().vote.span_cover == 0.0  # off by default
+    assert SegmentConfig().vote.span_cover == 0.5 and PRESETS["paper"].vote.span_cover == 0.0
     data = config_to_json(SegmentConfig())
     for f in ("span_cover", "span_confirm", "span_occupancy"):
         assert f"vote.{f}" in ADDED_AFTER_V1
         del data["vote"][f]
-    assert config_from_json(data, tmp_path / "config.json").vote == SegmentConfig().vote
+    old = config_from_json(data, tmp_path / "config.json").vote  # a config written before the rule: off
+    assert old == dataclasses.replace(SegmentConfig().vote, span_cover=0.0)
 
 
 def test_a_run_with_the_rule_saves_its_cleared_pairs_and_explains_them(tmp_path, capsys):
@@ -135,7 +136,7 @@ def test_a_run_with_the_rule_saves_its_cleared_pairs_and_explains_them(tmp_path,
     seg = segment(scene, with_fields(SegmentConfig(), {"vote.span_cover": 0.05, "vote.span_confirm": 1.0}))
     sc = seg.trace.vote.span_cleared
     assert sc is not None and sc.ndim == 2 and sc.shape[1] == 2
-    off = segment(scene, SegmentConfig())
+    off = segment(scene, with_fields(SegmentConfig(), {"vote.span_cover": 0.0}))
     assert off.trace.vote.span_cleared is None
     d = tmp_path / "run"
     save_run(seg, d, scene_root=write_synth_scene(scene, tmp_path / "scene", contact_sheet=False))
