@@ -124,7 +124,7 @@ def chain_inputs_of(data, step: int):
         added_colors=cat([a.colors for a in now], (0, 3), np.uint8),
         added_instance=cat([np.full(len(a.points), a.instance, np.int32) for a in now], 0, np.int32),
         eyes={u.frame: u.camera.T_world_camera[:3, 3] for u in ups if u.camera is not None},
-        geometry=_held_geometry(data, ups, inst, hist))
+        geometry=_held_geometry(data, ups, inst, hist), corrected_away=ups[0].corrected_away if ups else {})
 
 
 def _pre_contact(data) -> np.ndarray:

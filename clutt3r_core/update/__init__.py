@@ -17,8 +17,8 @@ The stages, each a pure function over typed data:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from dataclasses import dataclass, field
+from typing import Mapping, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -82,6 +82,8 @@ class UpdateFrame:
             update (its labels less the added instances', in order), or None when unknown: what
             ``scene_after.held_geometry`` checks (a chain written by an older version keeps its
             scene), so the viewer decides as ``clutt3r grasp --step`` without holding the rows.
+        corrected_away: {id: why it is no instance} of the ids the corrections of ``instance0``
+            merged, deleted or emptied (``run_labels.RunLabels.gone``; empty: none, or the run as segmented).
     """
 
     frame: int
@@ -94,6 +96,7 @@ class UpdateFrame:
     added_now: tuple[NewInstance, ...] = ()
     labels: object | None = None
     state_rows_sha256: str | None = None
+    corrected_away: Mapping[int, str] = field(default_factory=dict)
 
 
 @runtime_checkable

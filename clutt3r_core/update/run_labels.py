@@ -23,6 +23,8 @@ import json
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
+from types import MappingProxyType
+from typing import Mapping
 
 import numpy as np
 
@@ -89,14 +91,19 @@ class RunLabels:
         ids: (K,) int32 ids that are not deleted and have points, ascending.
         num_ids: ids ever used (deleted and split ones included); new ids start here.
         source: where it came from.
+        gone: {id: why it is no instance} for the ids the corrections merged, deleted or emptied
+            (``gone_reasons``; empty without a log), so a command refusing such an id after updates
+            names the id it joined, as at step 0 (``StepZeroLabels.check_target``).
     """
 
     instance: np.ndarray
     ids: np.ndarray
     num_ids: int
     source: LabelSource
+    gone: Mapping[int, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "gone", MappingProxyType(dict(self.gone)))
         inst = np.asarray(self.instance, np.int32)
         if inst.ndim != 1:
             raise SceneError(f"RunLabels.instance must be (N,), got {inst.shape}")
@@ -166,7 +173,8 @@ def _of_corrected(lab, ops) -> RunLabels:
     ids = np.flatnonzero(~lab.deleted & (counts > 0)).astype(np.int32)
     cats = tuple((int(k), lab.categories[k]) for k in ids if lab.categories[k])
     return RunLabels(lab.instance, ids, lab.num_instances,
-                     LabelSource(len(ops), len(active_edits(ops)[0]), labels_sha256(lab.instance), cats))
+                     LabelSource(len(ops), len(active_edits(ops)[0]), labels_sha256(lab.instance), cats),
+                     gone_reasons(ops, lab))
 
 
 def fused_count(seg) -> int:
@@ -499,5 +507,6 @@ def step_zero_labels(seg, run_dir: str | Path | None = None, annotations=None,
         ids = np.unique(inst[inst >= 0]).astype(np.int32)
         labels = RunLabels(inst, ids, int(seg.num_instances), LabelSource(0, 0, labels_sha256(inst)))
     same = np.array_equal(labels.instance, seg.instance)
-    gone = gone_reasons(ops, lab, corrected=not same) if lab is not None else {}
+    # the corrected labelling's reasons (``RunLabels.gone``); with the run's own labels no id is emptied
+    gone = (labels.gone if not same else gone_reasons(ops, lab, corrected=False)) if lab is not None else {}
     return StepZeroLabels(labels, seg, not same, gone, pre)

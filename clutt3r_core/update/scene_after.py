@@ -144,6 +144,8 @@ class ChainInputs:
         source: the labelling the chain was computed from (``state.json`` "labels",
             ``run_labels.LabelSource``; None: not recorded, and in the viewer's scenes), carried
             into ``SceneAfter``.
+        corrected_away: {id: why it is no instance} of the ids that labelling's corrections merged,
+            deleted or emptied (``run_labels.RunLabels.gone``), carried into ``SceneAfter``.
     """
 
     points: np.ndarray
@@ -163,6 +165,7 @@ class ChainInputs:
     run_share: np.ndarray | None = None
     geometry: np.ndarray | None = None
     source: object | None = None
+    corrected_away: Mapping[int, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         n, a = len(self.points), len(self.added_points)
@@ -184,6 +187,7 @@ class ChainInputs:
         object.__setattr__(self, "geometry", self.instance if geo is None or np.array_equal(geo, self.instance)
                            else _ro(geo, np.int32))
         object.__setattr__(self, "history", tuple(self.history))
+        object.__setattr__(self, "corrected_away", MappingProxyType(dict(self.corrected_away)))
         object.__setattr__(self, "eyes", MappingProxyType({int(f): np.asarray(e, np.float64)
                                                            for f, e in dict(self.eyes).items()}))
 
@@ -231,6 +235,9 @@ class SceneAfter:
             ``run_points`` moved and ``gone`` by it; None: ``run_instance``.
         source: the labelling the chain was computed from (``run_labels.LabelSource``, state.json
             "labels"), None when not recorded; ``corrections`` is what grasps.json records of it.
+        corrected_away: {id: why it is no instance} of the ids that labelling's corrections merged,
+            deleted or emptied (``ChainInputs.corrected_away``): ``check_present`` names the id a
+            merged one joined, as at step 0.
     """
 
     step: int
@@ -255,6 +262,7 @@ class SceneAfter:
     run_share: np.ndarray | None = None
     run_geometry: np.ndarray | None = None
     source: object | None = None
+    corrected_away: Mapping[int, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         n, a = len(self.run_points), len(self.added_points)
@@ -279,6 +287,7 @@ class SceneAfter:
                            else _ro(self.run_geometry, np.int32))
         object.__setattr__(self, "removed", MappingProxyType(dict(self.removed)))
         object.__setattr__(self, "added", MappingProxyType(dict(self.added)))
+        object.__setattr__(self, "corrected_away", MappingProxyType(dict(self.corrected_away)))
 
     def _scene(self, run: np.ndarray, added: np.ndarray) -> np.ndarray:
         if not self.gone.any() and not len(added):
@@ -337,6 +346,9 @@ class SceneAfter:
             s, f = self.removed[k]
             raise SceneError(f"instance {k} was removed by update {s} (frame {f}); it is not in the {self.label} "
                              f"(instances now: {', '.join(map(str, self.present.tolist())) or 'none'})")
+        if k in self.corrected_away:  # as at step 0 (``StepZeroLabels.check_target``): name the id it joined
+            raise SceneError(f"instance {k} is not in the {self.label}: {self.corrected_away[k]} before the "
+                             f"chain's updates (instances now: {', '.join(map(str, self.present.tolist())) or 'none'})")
         raise SceneError(f"instance {k} does not exist in the {self.label} "
                          f"(instances now: {', '.join(map(str, self.present.tolist())) or 'none'})")
 
@@ -496,7 +508,7 @@ def build_scene_after(inp: ChainInputs) -> SceneAfter:
     return SceneAfter(step, inp.n_updates, hist[-1].frame if hist else None, pts, inp.colors, nrm,
                       inst0, gone, cat(P, (0, 3), np.float32), cat(C, (0, 3), np.uint8),
                       cat(N, (0, 3), np.float32), cat(I, 0, np.int32), present, removed, added, tuple(moved), M,
-                      inp.run, inp.stale, inp.run_share, None if same else geo, inp.source)
+                      inp.run, inp.stale, inp.run_share, None if same else geo, inp.source, inp.corrected_away)
 
 
 def chain_inputs(run_dir: str | Path, step: int | None = None, seg=None,
@@ -531,7 +543,7 @@ def chain_inputs(run_dir: str | Path, step: int | None = None, seg=None,
         raise SceneFileError(dirs[step - 1] / "state.json", f"history has {len(hist)} updates, expected {step}")
     from clutt3r_core.update.run_labels import LOG_NAME, run_labels, run_share, stale_note
 
-    stale, share = None, None
+    stale, share, away = None, None, {}
     inst0, n_run, ids0 = seg.instance, seg.num_instances, np.arange(seg.num_instances)
     corrected = st.labels is not None and st.labels.entries > 0  # as the state's step 0 was built
     if corrected:
@@ -541,7 +553,7 @@ def chain_inputs(run_dir: str | Path, step: int | None = None, seg=None,
                                  f"replaying its first {st.labels.entries} entries does not give the labels "
                                  f"{dirs[0].name} was computed from (the log was rewritten?)")
         share = run_share(lab.instance, seg, lab.num_ids)
-        inst0, n_run, ids0 = lab.instance, lab.num_ids, lab.ids
+        inst0, n_run, ids0, away = lab.instance, lab.num_ids, lab.ids, lab.gone
     if (run_dir / LOG_NAME).is_file():  # always there for a corrected chain (run_labels above needs it)
         stale = stale_note(run_dir, seg)
     # the state holds the added instances still present, moved by the later updates
@@ -551,7 +563,7 @@ def chain_inputs(run_dir: str | Path, step: int | None = None, seg=None,
                         state_rows(st.instance, added_ids))
     return ChainInputs(instance=inst0, ids=ids0, num_ids=n_run, history=hist, added_points=st.points[sel],
                        added_colors=st.colors[sel], added_instance=st.instance[sel], stale=stale, run_share=share,
-                       geometry=geo, source=st.labels, **base)
+                       geometry=geo, source=st.labels, corrected_away=away, **base)
 
 
 def held_geometry(geo: np.ndarray, seg, removed, rows: np.ndarray | str) -> np.ndarray | None:

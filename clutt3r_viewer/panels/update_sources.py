@@ -114,8 +114,10 @@ def load_update_frames(run_dir: Path | None, scene: Scene | None) -> tuple[Updat
     from clutt3r_core.update.scene_after import post_camera
 
     src = chain_source(run_dir)[1]
+    away: dict[int, str] = {}
     if src is not None and src.entries > 0:  # the corrected labelling the chain was computed from
-        instance0 = run_labels(run_dir, entries=src.entries).instance
+        lab0 = run_labels(run_dir, entries=src.entries)
+        instance0, away = lab0.instance, dict(lab0.gone)
     else:
         instance0 = np.load(Path(run_dir) / "instances.npz")["instance"]
     instance0 = np.asarray(instance0, np.int32)
@@ -150,7 +152,7 @@ def load_update_frames(run_dir: Path | None, scene: Scene | None) -> tuple[Updat
         pi = np.where(np.isin(instance0, list(removed)), -1, instance0).astype(np.int32)
         out.append(UpdateFrame(frame=frame, rgb=rgb, camera=cam, point_instance=pi,
                                text=_text(doc), result=_result(d, doc, hw, now), instance0=instance0,
-                               added_now=now, labels=src, state_rows_sha256=rows))
+                               added_now=now, labels=src, state_rows_sha256=rows, corrected_away=away))
     return tuple(out)
 
 

@@ -113,3 +113,24 @@ def test_the_viewer_shows_the_commands_scene_of_an_older_chain(run, base, contac
     np.testing.assert_array_equal(v.points, c.points)
     for k in (static, moved):
         np.testing.assert_array_equal(scene_grasp_request(d, 1, k).target, c.grasp_target(k))
+
+
+def test_the_viewer_names_the_id_a_merged_one_joined_after_an_update(run, base):  # noqa: F811
+    """The Grasps tab after an update refuses a merged id with the commands' reason (review 13)."""
+    import clutt3r_viewer.panels.update_sources  # noqa: F401  (registers the loader)
+    from clutt3r_core.errors import SceneError
+    from clutt3r_core.grasping.request import request_from_run
+    from clutt3r_viewer.loading import load_viewer_data
+    from clutt3r_viewer.scene_step import scene_grasp_request
+
+    _, seg, pre, cleared = base
+    static, moved, removed = _roles(cleared)
+    with Annotations.open(run, segmentation=seg, author="test") as ann:
+        ann.apply_op(Merge(into=static, other=moved))
+    _chain(run, removed=removed)
+    d = load_viewer_data(run, images=False)
+    with pytest.raises(SceneError, match=f"merged into I{static}") as got:
+        scene_grasp_request(d, 1, moved)
+    with pytest.raises(SceneError) as want:
+        request_from_run(run, moved, step=1)
+    assert str(got.value) == str(want.value)

@@ -252,3 +252,21 @@ def test_a_split_gives_one_geometry_at_step_zero_and_after_updates(run, base, sh
     inp = chain_inputs(run, 1, seg=seg)
     assert inp.geometry is not inp.instance  # the state's labels were reproduced (else it falls back)
     np.testing.assert_array_equal(inp.geometry, z.geometry)
+
+
+def test_a_merged_id_after_an_update_names_the_id_it_joined(run, base):
+    """At step 0 a merged id is refused naming the id it joined (``StepZeroLabels.check_target``);
+    after an update the same (review 13; before: "does not exist in the scene after update 1")."""
+    from clutt3r_core.grasping.request import request_from_run
+
+    _, seg, pre, cleared = base
+    static, moved, removed = _roles(cleared)
+    with Annotations.open(run, segmentation=seg, author="test") as ann:
+        ann.apply_op(Merge(into=static, other=moved))
+    _chain(run, moved=None, removed=removed)
+    with pytest.raises(SceneError, match=f"I{moved} was merged into I{static} .* entry 1"):
+        request_from_run(run, moved, step=1)
+    with pytest.raises(SceneError, match="removed by update 1"):  # a removed id keeps its reason
+        request_from_run(run, removed, step=1)
+    with pytest.raises(SceneError, match="does not exist"):
+        request_from_run(run, 99, step=1)
