@@ -347,8 +347,9 @@ class SceneAfter:
             raise SceneError(f"instance {k} was removed by update {s} (frame {f}); it is not in the {self.label} "
                              f"(instances now: {', '.join(map(str, self.present.tolist())) or 'none'})")
         if k in self.corrected_away:  # as at step 0 (``StepZeroLabels.check_target``): name the id it joined
-            raise SceneError(f"instance {k} is not in the {self.label}: {self.corrected_away[k]} before the "
-                             f"chain's updates (instances now: {', '.join(map(str, self.present.tolist())) or 'none'})")
+            raise SceneError(f"instance {k} is not in the {self.label}: before the chain's updates, "
+                             f"{self.corrected_away[k]} (instances now: "
+                             f"{', '.join(map(str, self.present.tolist())) or 'none'})")
         raise SceneError(f"instance {k} does not exist in the {self.label} "
                          f"(instances now: {', '.join(map(str, self.present.tolist())) or 'none'})")
 
