@@ -39,9 +39,9 @@ from clutt3r_core.segmentation.grouping import (
 from clutt3r_core.segmentation.instance_surface import smooth_instances
 from clutt3r_core.segmentation.contact_masks import mask_views
 from clutt3r_core.segmentation.refine import absorb_fragments, contact_labels, labels_before_contact
+from clutt3r_core.segmentation.span import span_revote
 from clutt3r_core.segmentation.trace import StageClock, StageTiming, Trace
 from clutt3r_core.segmentation.trees import InstanceTree, build_tree_overlaps
-from clutt3r_core.segmentation.span import span_revote
 from clutt3r_core.segmentation.unvoted import unvoted_instances
 from clutt3r_core.segmentation.vote import supervoxel_vote
 from clutt3r_core.supervoxels import build_supervoxels
