@@ -116,9 +116,6 @@ ADDITIONS: tuple[Addition, ...] = (
     Addition("overlap-gate-min", "stage 2 only merges groups whose mean S_spatial is at least 0.01 (not a stray "
              "mask edge on a shared super-voxel)",
              (("grouping.semantic_min_spatial", 0.01, 0.0),), needs=("overlap-gate",)),
-    Addition("span-masks", "after the fragment absorption, a mask covering at least half of another group's footprint, "
-             "where its own group's other masks do not, does not vote there (an under-segmented candidate)",
-             (("vote.span_cover", 0.5, 0.0),)),
     Addition("coverage-guard", "a super-voxel goes to its winner only if one of its masks covers >= 50 % of it",
              (("vote.min_coverage", 0.5, 0.0),)),
     Addition("abs-normal-dot", "|<n_i, n_j>| instead of <n_i, n_j> in eq. 1",
