@@ -146,12 +146,8 @@ def point_mask_votes(points: np.ndarray, label: np.ndarray, views: MaskViews, de
     k = views.num_instances
     has = (lab >= 0) & (lab < k)
     for cam, depth, codes, ci in zip(views.cameras, views.depths, views.codes, views.code_instance):
-        T = cam.T_camera_world
-        pc = p @ T[:3, :3].T + T[:3, 3]
-        z = pc[:, 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u = np.round(cam.fx * pc[:, 0] / z + cam.cx)
-            v = np.round(cam.fy * pc[:, 1] / z + cam.cy)
+        uv, z = cam.project(p)
+        u, v = np.round(uv[:, 0]), np.round(uv[:, 1])
         ok = (z > 1e-6) & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
         idx = np.flatnonzero(ok)
         ui, vi = u[idx].astype(np.int64), v[idx].astype(np.int64)
