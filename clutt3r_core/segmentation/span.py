@@ -38,7 +38,7 @@ from typing import Callable
 import numpy as np
 
 from clutt3r_core.errors import SceneError
-from clutt3r_core.segmentation.vote import VoteConfig, VoteResult, renumber_by_score
+from clutt3r_core.segmentation.vote import VoteConfig, VoteResult, keep_scores
 
 __all__ = ["SpanningVotes", "spanning_votes", "cleared_occupancy", "span_revote"]
 
@@ -181,8 +181,5 @@ def span_revote(
     if not len(span.cleared):
         return replace(vote, span_cleared=span.cleared)
     new = vote_on(cleared_occupancy(occupancy, span.cleared))
-    before = {int(g): float(s) for g, s in zip(vote.instance_group, vote.scores)}
-    scores = np.array([before.get(int(g), float(s)) for g, s in zip(new.instance_group, new.scores)], np.float32)
-    sv_label, order = renumber_by_score(new.sv_label, scores, np.ones(len(scores), bool))
-    return replace(new, sv_label=sv_label, instance_group=new.instance_group[order], scores=scores[order],
-                   span_cleared=span.cleared)
+    before = {groups[int(g)]: float(s) for g, s in zip(vote.instance_group, vote.scores)}
+    return replace(keep_scores(new, groups, before), span_cleared=span.cleared)

@@ -18,13 +18,14 @@ smallest super-voxels after the vote by their neighbourhood (docs/benchmark/stri
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from clutt3r_core.errors import SceneError
 
-__all__ = ["VoteConfig", "VoteResult", "supervoxel_vote", "renumber_by_score", "VOTE_REASONS", "smooth_small_supervoxels"]
+__all__ = ["VoteConfig", "VoteResult", "supervoxel_vote", "renumber_by_score", "keep_scores", "VOTE_REASONS",
+           "smooth_small_supervoxels"]
 
 VOTE_REASONS = ("labelled", "no_vote", "support", "coverage", "group_dropped")
 """Codes of ``VoteResult.sv_reason``, in the order the vote applies them: no group's masks
@@ -173,6 +174,17 @@ def renumber_by_score(label: np.ndarray, score: np.ndarray, keep: np.ndarray) ->
     remap = np.full(max(len(keep), 1), -1, np.int32)
     remap[alive] = np.arange(len(alive), dtype=np.int32)
     return np.where(label >= 0, remap[np.maximum(label, 0)], -1).astype(np.int32), alive
+
+
+def keep_scores(vote: VoteResult, groups: tuple[tuple[int, ...], ...], kept: dict[tuple[int, ...], float]) -> VoteResult:
+    """The vote on ``groups`` with the instance of each group in ``kept`` at that confidence
+    (the others keep the vote's), renumbered by descending confidence as the vote numbers them
+    (ties: lower id). The fragment absorption (``refine.absorb_fragments``) and the spanning-mask
+    revote (``span.span_revote``) keep the confidences an instance had before they voted again.
+    """
+    scores = np.array([kept.get(groups[int(g)], float(s)) for g, s in zip(vote.instance_group, vote.scores)], np.float32)
+    sv_label, order = renumber_by_score(vote.sv_label, scores, np.ones(len(scores), bool))
+    return replace(vote, sv_label=sv_label, instance_group=vote.instance_group[order], scores=scores[order])
 
 
 def _won_points(chosen: np.ndarray, sv_counts: np.ndarray, g: int) -> np.ndarray:
