@@ -278,8 +278,8 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
     with timer("grouping"):
         grouping = run_grouping(nodes, sim, len(views), config.grouping, duplicates=dups.pairs)
     with timer("vote"):
-        def revote(groups):
-            return supervoxel_vote(groups, occupancy, sv.counts, sv.support, s_spat, len(views), config.vote)
+        def revote(groups, occ=occupancy):
+            return supervoxel_vote(groups, occ, sv.counts, sv.support, s_spat, len(views), config.vote)
 
         vote = revote(grouping.groups)
         # ours (issue 13): fragment groups join the instance that won their masks' footprint
@@ -289,9 +289,8 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
             # by its own group, does not vote there (``segmentation.span``); after the absorption, so
             # that a fragment of the mask's own object has joined its group first
             groups = grouping.groups
-            vote = span_revote(groups, occupancy, sv.counts, sv.support, vote,
-                               lambda occ: supervoxel_vote(groups, occ, sv.counts, sv.support, s_spat, len(views),
-                                                           config.vote), config.vote)
+            vote = span_revote(groups, occupancy, sv.counts, sv.support, vote, lambda occ: revote(groups, occ),
+                               config.vote)
         # the vote's labels per voxel; ours, off by default: small super-voxels smoothed (session 8),
         # weak echoes unlabelled (issue 13). One function, so that the labels the contact rule
         # changes can be recomputed from a run (``refine.run_labels_before_contact``)
