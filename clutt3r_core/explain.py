@@ -326,10 +326,10 @@ def _stop_rule(st, cfg, ga, gb, shared, sp, score, si, bset) -> tuple[str, tuple
     rules = []
     if shared and (cfg.one_mask_per_view or (len(ga) == 1 and len(gb) == 1)):
         rules.append("one_mask_per_view")
-    # the overlap gate: S_spatial must be above 0 and at least ``semantic_min_spatial`` (older
-    # configs have no such field: 0)
+    # the overlap gate: S_spatial must be above 0 and at least ``semantic_min_spatial`` (a config
+    # written before the field loads it as 0: ``config.ADDED_AFTER_V1``)
     if st.stage == "semantic" and cfg.semantic_needs_overlap and not (
-            sp > 0.0 and sp >= getattr(cfg, "semantic_min_spatial", 0.0)):
+            sp > 0.0 and sp >= cfg.semantic_min_spatial):
         rules.append("overlap_gate")
     key = (si, min(ga[0], gb[0]), max(ga[0], gb[0]))
     if key in bset:  # recorded: a rule blocked a pair whose score reached tau
