@@ -19,6 +19,7 @@ from clutt3r_core.pipeline import Segmentation
 from clutt3r_core.grasping import GraspSet
 from clutt3r_core.scene import Scene, View
 from clutt3r_core.update import UpdateFrame
+from clutt3r_core.segmentation.span import cleared_occupancy
 from clutt3r_core.segmentation.trace import Trace
 from clutt3r_core.segmentation.vote import VoteConfig, supervoxel_vote
 
@@ -196,8 +197,6 @@ class ViewerData:
             occ = tr.occupancy
             if n_events == self.num_events and tr.vote.span_cleared is not None:
                 # the final groups' vote ignored the spanning masks' occupancies (core segmentation.span)
-                from clutt3r_core.segmentation.span import cleared_occupancy
-
                 occ = cleared_occupancy(occ, tr.vote.span_cleared)
             vote = supervoxel_vote(
                 groups, occ, self.sv_count, self.seg.sv_support,
