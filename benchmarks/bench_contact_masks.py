@@ -1,7 +1,7 @@
 """Does the per-point mask test separate the contact fill's object walls from floor noise? (session 9)
 
-For each scene, ``segment`` runs with the contact fill on (the default since session 9: contact 2 mm,
-fill 4-12 mm above each object's own support level) and ``contact_labels`` is called again on its
+For each scene, ``segment`` runs with the contact fill on (off by default; on as measured in session 9:
+contact 2 mm, fill 4-12 mm above each object's own support level) and ``contact_labels`` is called again on its
 inputs with the fill's mask test off, so every fill candidate is known. For each, ``point_mask_votes`` counts
 the views that see it and those that put it inside the masks of the instance it joins; the same
 for that instance's own points (labelled before the fill) in the same height band. Prints one JSON
@@ -108,15 +108,11 @@ def picture(scene, d: dict, path: str) -> None:
     img = Image.fromarray(np.asarray(v.rgb)).convert("RGB")
     draw = ImageDraw.Draw(img)
     cam = v.camera
-    T = cam.T_camera_world
     r = max(1, cam.width // 400)
 
     def dots(pts, colour):
-        pc = pts @ T[:3, :3].T + T[:3, 3]
-        ok = pc[:, 2] > 1e-6
-        u = cam.fx * pc[ok, 0] / pc[ok, 2] + cam.cx
-        w = cam.fy * pc[ok, 1] / pc[ok, 2] + cam.cy
-        for a, b in zip(u, w):
+        uv, z = cam.project(pts)
+        for a, b in uv[z > 1e-6]:
             draw.ellipse([a - r, b - r, a + r, b + r], fill=colour)
 
     p = d["points"]
