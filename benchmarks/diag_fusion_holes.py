@@ -71,6 +71,8 @@ for spec in specs:
     cand = np.flatnonzero(lone)
     kn[cand] = _kept_neighbours(keys, ext, inverse, kept, cand)
     rim = lone & (nmoved == 0) & (kn >= pc.surface_rim_neighbours)
+    # the keep rule above is surface._snap_and_filter's, recomputed: it must find the fusion's rim voxels
+    assert int(rim.sum()) == seg.trace.surface.rim, (int(rim.sum()), seg.trace.surface.rim)
     # voxel fate: 0 kept, 1 rim, 2 lone moved untrusted (count rule) w/ kept nbr, 3 lone moved no kept nbr,
     # 4 lone unmoved no kept nbr
     fate = np.full(nv, -1)
