@@ -16,6 +16,9 @@ of its footprint (a ``MergeStep`` of stage ``"absorb"``, so the trace replays it
 merge) and the vote is run again; one merge at a time, the least-won group first, until no
 group is below the fraction. A separate object touching another wins its own footprint (its
 masks cover its own super-voxels more than the neighbour's masks do), so it is not absorbed.
+
+(About 530 lines: ``RefineConfig`` is 145 of them, each field with the measurements that set it;
+the after-vote rules here share that config and ``labels_before_contact`` composes them.)
 """
 
 from __future__ import annotations
