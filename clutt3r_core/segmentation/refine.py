@@ -18,7 +18,7 @@ group is below the fraction. A separate object touching another wins its own foo
 masks cover its own super-voxels more than the neighbour's masks do), so it is not absorbed.
 
 (About 530 lines: ``RefineConfig`` is 145 of them, each field with the measurements that set it;
-the after-vote rules here share that config and ``labels_before_contact`` composes them.)
+the after-vote rules here (absorption, weak echoes, contact) share that config.)
 """
 
 from __future__ import annotations
