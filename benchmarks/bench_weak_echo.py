@@ -34,6 +34,8 @@ from clutt3r_core.pipeline import segment
 from clutt3r_core.segmentation.refine import run_labels_before_contact, weak_echoes
 from clutt3r_core.update.run_labels import fused_count
 
+from bench_config_ab import parse_variant  # this folder's sibling script
+
 
 def off_gt(points: np.ndarray, gt_points: np.ndarray) -> np.ndarray:
     """(N,) bool: points whose 10 mm evaluation cell holds no GT point (object or table)."""
@@ -69,7 +71,7 @@ def main() -> None:
         raise SystemExit("seeds >= 6 are held out")
     specs = [s for s in synth_suite(max(args.seeds) + 1, args.difficulties, depth_noise=args.depth_noise)
              if int(s.name[-4:]) in args.seeds]
-    base_fields = {k: json.loads(v) for k, _, v in (kv.partition("=") for kv in filter(None, args.base.split(",")))}
+    base_fields = parse_variant("base:" + args.base)[1]
     variants = [("default", 0.0)] + [(f"echo{r:g}", r) for r in args.ratios]
     rows: dict[str, list[dict]] = {n: [] for n, _ in variants}
     cpu_seg, cpu_echo = 0.0, 0.0
