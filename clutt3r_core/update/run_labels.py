@@ -301,7 +301,7 @@ def corrected_geometry_labels(seg, corrected: np.ndarray, n: int, pre: np.ndarra
     pre = np.asarray(pre)[:n]
     run = np.asarray(seg.instance[:n])
     # the points the contact fill labelled (unlabelled before the rule) are not the geometry's either,
-    # whatever id a correction gave them (``refine.contact_labels``; on by default since session 9)
+    # whatever id a correction gave them (``refine.contact_labels``; off by default, on with ``contact_fill_low`` / ``_high``)
     out[(pre < 0) & (run >= 0)] = -1
     cleared = (pre >= 0) & (run < 0) & (out < 0)
     if not cleared.any():

@@ -92,7 +92,7 @@ def test_pipeline_attaches_the_rim_after_the_vote(tmp_path):
 
     scene = generate_scene(SynthConfig(seed=1, preset="easy", views=3, width=320, height=240, n_objects=3,
                                        depth_noise="realsense"), progress=False)
-    # the contact fill off in both (on by default since session 9: it labels rim voxels too)
+    # the contact fill off in both, explicitly (off by default; on, it labels rim voxels too)
     off = segment(scene, with_fields(SegmentConfig(), {"pointcloud.surface_rim_neighbours": 0,
                                                        "refine.contact_fill_high": 0.0}))
     on = segment(scene, with_fields(SegmentConfig(), {"refine.contact_fill_high": 0.0}))

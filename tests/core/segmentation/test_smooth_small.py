@@ -111,7 +111,7 @@ def test_pipeline_smoothing_changes_only_small_supervoxels_and_never_the_groupin
 
     scene = generate_scene(SynthConfig(seed=1, preset="easy", views=3, width=320, height=240, n_objects=3,
                                        mask_noise="grounded-sam-like", depth_noise="realsense"), progress=False)
-    # the contact fill off in both (on by default since session 9: it reads the labels, so it follows them)
+    # the contact fill off in both, explicitly (off by default; it reads the labels, so it would follow them)
     off = segment(scene, with_fields(SegmentConfig(), {"refine.contact_fill_high": 0.0}))
     on = segment(scene, with_fields(SegmentConfig(), {"vote.smooth_max_size": 3, "vote.smooth_min_agree": 5,
                                                       "refine.contact_fill_high": 0.0}))

@@ -124,8 +124,8 @@ def noisy_contact_run(root, seed: int):
     """(run folder, its ``pipeline.Segmentation``, its labels before the contact rule) of a tiny
     generated easy scene with RealSense-like depth (``seed``, 3 views at 320 x 240, 3 objects) saved
     under ``root`` with its scene folder, segmented with the contact rule alone: the tests of the
-    labels before the rule read its cleared points (the contact fill, on by default since session 9,
-    adds points that are no pre-contact label; tests/core/segmentation/test_table_contact.py)."""
+    labels before the rule read its cleared points (the contact fill, off by default, would add
+    points that are no pre-contact label; tests/core/segmentation/test_table_contact.py)."""
     from clutt3r_core.config import SegmentConfig, with_fields
     from clutt3r_core.pipeline import segment
     from clutt3r_core.runs import save_run
