@@ -34,9 +34,9 @@ a displaced object's contact points stayed where it was (a ghost strip in the co
 ``compose_motions`` is the one place motions of a chain compose (``pose_new = T_world @
 pose_old``).
 
-Over 500 lines (~600): the scene, its two inputs' readers (``chain_inputs`` here, the viewer's
-from the same types) and the chain-file helpers they share are one contract; most of the length
-is the dataclasses' documented fields.
+Over 500 lines (~600) on purpose: the scene, its two inputs' readers (``chain_inputs`` here, the
+viewer's from the same types) and the chain-file helpers they share are one contract; most of the
+length is the dataclasses' documented fields.
 """
 
 from __future__ import annotations
