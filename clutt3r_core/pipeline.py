@@ -11,6 +11,8 @@ majority vote. A run folder is written and read by ``clutt3r_core.runs`` (``save
 
 from __future__ import annotations
 
+import dataclasses
+
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -45,6 +47,7 @@ from clutt3r_core.segmentation.trees import InstanceTree, build_tree_overlaps
 from clutt3r_core.segmentation.unvoted import unvoted_instances
 from clutt3r_core.segmentation.vote import supervoxel_vote
 from clutt3r_core.supervoxels import build_supervoxels
+from clutt3r_core.support import planar_covered
 
 __all__ = [
     "SegmentConfig",
@@ -246,6 +249,23 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
                             if config.exclude_background_masks else np.zeros(len(masks), bool))
         occupancy = np.concatenate(occ_parts, axis=0) if occ_parts else np.zeros((0, sv.num), np.float32)
         background = np.concatenate(bg_parts) if bg_parts else np.zeros(0, bool)
+        share = config.supervoxels.planar_mask_views
+        if share > 0 and sv.planar is not None and sv.planar.any() and len(background):
+            # ours (session 9), off by default: rule 3's planar support that object masks cover
+            # in most views is an object's flat top (``support.planar_covered``); the masks'
+            # background flags are first taken without that support, then again without it
+            core_voxel = (sv.support & ~sv.planar)[sv.labels]
+            obj = ~np.concatenate([background_masks(h, core_voxel, config.background_fraction) for h in view_hits])
+            visible = np.stack([np.bincount(sv.labels[cloud.pixel_voxel.pixels(vi)[1]], minlength=sv.num) > 0
+                                for vi in range(len(views))])
+            mask_view = np.concatenate([np.full(len(m), vi) for vi, m in enumerate(nodes_masks)])
+            unmark = planar_covered(sv.planar, occupancy, mask_view, obj, visible, share)
+            if unmark.any():
+                sv = dataclasses.replace(sv, support=sv.support & ~unmark, planar=sv.planar & ~unmark)
+                if config.exclude_background_masks:
+                    support_voxel = sv.support[sv.labels]
+                    background = np.concatenate([background_masks(h, support_voxel, config.background_fraction)
+                                                 for h in view_hits])
         # ours (issue 13): near-identical masks of one view are one mask (segmentation/duplicates.py)
         # (from the pixel overlaps the trees counted: no pixel is visited again)
         dups = duplicate_masks(nodes.view, nodes.parent, nodes.is_leaf, background, [o for _, o in built],

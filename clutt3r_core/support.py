@@ -17,7 +17,8 @@ from clutt3r_core.pointcloud import FusedCloud
 if TYPE_CHECKING:
     from clutt3r_core.supervoxels import SuperVoxelConfig
 
-__all__ = ["fit_plane_ransac", "plane_inliers", "ransac_hypothesis", "refine_plane", "SupportPlanes", "support_planes", "mark_support"]
+__all__ = ["fit_plane_ransac", "plane_inliers", "ransac_hypothesis", "refine_plane", "SupportPlanes", "support_planes",
+           "mark_support", "mark_support_rules"]
 
 
 def fit_plane_ransac(
@@ -221,10 +222,29 @@ def mark_support(
     """(support (K,) bool, plane or None); the rule is in the module doc of
     ``clutt3r_core.supervoxels``. ``planes``: ``support_planes(cloud, cfg)`` when computed
     already (the super-voxel stage runs it beside its graph)."""
+    support, plane, _ = mark_support_rules(cloud, labels, k, counts, src, dst, dist, cfg, planes)
+    return support, plane
+
+
+def mark_support_rules(
+    cloud: FusedCloud,
+    labels: np.ndarray,
+    k: int,
+    counts: np.ndarray,
+    src: np.ndarray,
+    dst: np.ndarray,
+    dist: np.ndarray,
+    cfg: SuperVoxelConfig,
+    planes: SupportPlanes | None = None,
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+    """``mark_support`` plus (K,) bool ``planar``: the support super-voxels that only rule 3's
+    large planar patches marked (without them, neither the ground fraction of rule 2 nor their
+    own extent would). Ours (session 9): on hard scenes a can's top level with a tray rim, or
+    the flat tops of touching objects, join one patch wider than any object."""
     if planes is None:
         planes = support_planes(cloud, cfg)
     if planes.plane is None:
-        return np.zeros(k, bool), None
+        return np.zeros(k, bool), None, np.zeros(k, bool)
     n = cloud.num
     uvh = planes.uvh
     bad = planes.ground.copy()
@@ -257,4 +277,39 @@ def mark_support(
     frac = np.bincount(labels, weights=w * bad, minlength=k) / np.maximum(counts, 1)
     ext = _group_extent(uvh, labels, k).max(axis=1)
     support = (frac >= cfg.support_fraction) | (ext >= cfg.max_object_extent)
-    return support, planes.plane
+    ground = np.bincount(labels, weights=w * planes.ground, minlength=k) / np.maximum(counts, 1)
+    planar = support & (ground < cfg.support_fraction) & (ext < cfg.max_object_extent)
+    return support, planes.plane, planar
+
+
+def planar_covered(planar: np.ndarray, occupancy: np.ndarray, mask_view: np.ndarray, object_mask: np.ndarray,
+                   visible: np.ndarray, min_share: float, min_occupancy: float = 0.5) -> np.ndarray:
+    """(K,) bool: the ``planar`` super-voxels that object masks cover in most views that see them
+    (``SuperVoxelConfig.planar_mask_views``; ours, session 9).
+
+    ``planar``: (K,) bool, support marked by rule 3 alone (``SuperVoxels.planar``); ``occupancy``:
+    (M, K) float o_i(k) of every mask (Sec. III-B eq. 2, over k's points visible in the mask's
+    view); ``mask_view``: (M,) int view of each mask, 0..V-1; ``object_mask``: (M,) bool, a mask
+    that the other support rules do not make background; ``visible``: (V, K) bool, view v sees a
+    point of k. A view covers k when one of its object masks has o_i(k) >= ``min_occupancy``;
+    k is covered when at least 2 views and a fraction ``min_share`` of the views seeing it do.
+    """
+    planar = np.asarray(planar, bool)
+    k = planar.shape[0]
+    visible = np.asarray(visible, bool)
+    if occupancy.shape[1:] != (k,) or visible.shape[1:] != (k,) or len(mask_view) != occupancy.shape[0]:
+        raise ValueError(f"planar_covered: shapes {planar.shape}, {occupancy.shape}, {visible.shape}, {len(mask_view)}")
+    out = np.zeros(k, bool)
+    cols = np.flatnonzero(planar)
+    if not len(cols) or min_share <= 0:
+        return out
+    rows = np.flatnonzero(np.asarray(object_mask, bool))
+    covered = np.zeros((visible.shape[0], len(cols)), bool)
+    if len(rows):
+        hit = occupancy[np.ix_(rows, cols)] >= min_occupancy  # (R, C)
+        np.logical_or.at(covered, np.asarray(mask_view)[rows], hit)
+    covered &= visible[:, cols]
+    n_cov = covered.sum(axis=0)
+    n_vis = visible[:, cols].sum(axis=0)
+    out[cols] = (n_cov >= 2) & (n_cov >= min_share * np.maximum(n_vis, 1))
+    return out
