@@ -100,3 +100,17 @@ def test_covered_is_planar_monotone_in_share(seed, share):
     assert not (out & ~planar).any()
     assert not (planar_covered(planar, occ, view, obj, visible, min(1.0, share + 0.2)) & ~out).any()
     assert not (out & ~planar_covered(planar, occ, view, obj | (rng.random(m) < 0.5), visible, share)).any()
+
+
+def test_pipeline_guard_only_removes_support():
+    # on a tiny generated scene the guard (any share) may only un-mark support super-voxels:
+    # same super-voxels, support a subset of the default's, every instance label still valid
+    from clutt3r_core.config import SegmentConfig, with_fields
+    from clutt3r_core.pipeline import segment
+    from tests.core._tiny_run import tiny_scene, tiny_segmentation
+
+    base = tiny_segmentation()
+    seg = segment(tiny_scene(), with_fields(SegmentConfig(), {"supervoxels.planar_mask_views": 0.01}), progress=False)
+    np.testing.assert_array_equal(seg.sv_labels, base.sv_labels)
+    assert not (seg.sv_support & ~base.sv_support).any()
+    assert seg.instance.max() < len(seg.scores)
