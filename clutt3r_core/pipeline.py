@@ -12,7 +12,6 @@ majority vote. A run folder is written and read by ``clutt3r_core.runs`` (``save
 from __future__ import annotations
 
 import dataclasses
-
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
