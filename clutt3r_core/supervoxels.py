@@ -49,7 +49,7 @@ from clutt3r_core.errors import SceneError
 from clutt3r_core.normals import knn_query, knn_tree
 from clutt3r_core.pointcloud import FusedCloud
 from clutt3r_core.graph_ops import connected_components
-from clutt3r_core.support import fit_plane_ransac, mark_support_rules, support_planes
+from clutt3r_core.support import fit_plane_ransac, mark_support, support_planes
 
 __all__ = ["SuperVoxelConfig", "SuperVoxels", "build_supervoxels", "fit_plane_ransac"]
 
@@ -158,7 +158,7 @@ class SuperVoxels:
             unit n pointing towards the cameras, or None when none was found / asked for.
         sizes: (K,) int64 number of voxels per super-voxel (ours).
         planar: (K,) bool, support marked by rule 3's large planar patches alone (ours, session 9;
-            ``support.mark_support_rules``), or None when not computed.
+            ``support.mark_support``), or None when not computed.
     """
 
     labels: np.ndarray
@@ -378,7 +378,7 @@ def build_supervoxels(cloud: FusedCloud, cfg: SuperVoxelConfig = SuperVoxelConfi
         counts = np.bincount(labels, weights=cloud.counts, minlength=k).round().astype(np.int64)
         weights = counts / max(int(counts.sum()), 1)
         if planes is not None:
-            support, plane, planar = mark_support_rules(cloud, labels, k, counts, src, dst, dist, cfg,
+            support, plane, planar = mark_support(cloud, labels, k, counts, src, dst, dist, cfg,
                                                         planes=planes.result())  # re-raises the thread's error
         else:
             support, plane, planar = np.zeros(k, bool), None, None

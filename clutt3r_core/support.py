@@ -17,8 +17,7 @@ from clutt3r_core.pointcloud import FusedCloud
 if TYPE_CHECKING:
     from clutt3r_core.supervoxels import SuperVoxelConfig
 
-__all__ = ["fit_plane_ransac", "plane_inliers", "ransac_hypothesis", "refine_plane", "SupportPlanes", "support_planes",
-           "mark_support", "mark_support_rules"]
+__all__ = ["fit_plane_ransac", "plane_inliers", "ransac_hypothesis", "refine_plane", "SupportPlanes", "support_planes", "mark_support"]
 
 
 def fit_plane_ransac(
@@ -218,28 +217,12 @@ def mark_support(
     dist: np.ndarray,
     cfg: SuperVoxelConfig,
     planes: SupportPlanes | None = None,
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """(support (K,) bool, plane or None); the rule is in the module doc of
-    ``clutt3r_core.supervoxels``. ``planes``: ``support_planes(cloud, cfg)`` when computed
-    already (the super-voxel stage runs it beside its graph)."""
-    support, plane, _ = mark_support_rules(cloud, labels, k, counts, src, dst, dist, cfg, planes)
-    return support, plane
-
-
-def mark_support_rules(
-    cloud: FusedCloud,
-    labels: np.ndarray,
-    k: int,
-    counts: np.ndarray,
-    src: np.ndarray,
-    dst: np.ndarray,
-    dist: np.ndarray,
-    cfg: SuperVoxelConfig,
-    planes: SupportPlanes | None = None,
 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
-    """``mark_support`` plus (K,) bool ``planar``: the support super-voxels that only rule 3's
-    large planar patches marked (without them, neither the ground fraction of rule 2 nor their
-    own extent would). Ours (session 9): on hard scenes a can's top level with a tray rim, or
+    """(support (K,) bool, plane or None, planar (K,) bool); the rule is in the module doc of
+    ``clutt3r_core.supervoxels``. ``planes``: ``support_planes(cloud, cfg)`` when computed
+    already (the super-voxel stage runs it beside its graph). ``planar``: the support
+    super-voxels that only rule 3's large planar patches marked (without them, neither the ground
+    fraction of rule 2 nor their own extent would). Ours (session 9): on hard scenes a can's top level with a tray rim, or
     the flat tops of touching objects, join one patch wider than any object."""
     if planes is None:
         planes = support_planes(cloud, cfg)
