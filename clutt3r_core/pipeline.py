@@ -257,8 +257,7 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
             obj = ~np.concatenate([background_masks(h, core_voxel, config.background_fraction) for h in view_hits])
             visible = np.stack([np.bincount(sv.labels[cloud.pixel_voxel.pixels(vi)[1]], minlength=sv.num) > 0
                                 for vi in range(len(views))])
-            mask_view = np.concatenate([np.full(len(m), vi) for vi, m in enumerate(nodes_masks)])
-            unmark = planar_covered(sv.planar, occupancy, mask_view, obj, visible, share)
+            unmark = planar_covered(sv.planar, occupancy, nodes.view, obj, visible, share)
             if unmark.any():
                 sv = dataclasses.replace(sv, support=sv.support & ~unmark, planar=sv.planar & ~unmark)
                 if config.exclude_background_masks:
