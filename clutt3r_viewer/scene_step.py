@@ -102,7 +102,7 @@ def chain_inputs_of(data, step: int):
     (the chain the viewer loaded): the run's cloud in the chain's labelling (``chain_instance``),
     each update's record (``HistoryEntry.of_result``), the added instances as the state after
     ``step`` updates holds them (``UpdateFrame.added_now``), the post views' camera centres, and
-    the chain's labels before the contact rule (the core's ``chain_geometry``, as ``clutt3r grasp
+    the chain's labels before the contact rule (the core's ``run_labels.geometry_labels``, as ``clutt3r grasp
     --step`` reads them: the points an update moved or removed with their instance, the grasp target)."""
     from clutt3r_core.update.scene_after import ChainInputs
     from clutt3r_core.update.state import HistoryEntry
@@ -138,20 +138,20 @@ def _pre_contact(data) -> np.ndarray:
 
 
 def _chain_geometry(data, inst: np.ndarray, corrected: bool | None = None) -> np.ndarray:
-    """The core's ``chain_geometry`` of the labelling ``inst``, once per labelling (the chain's, the run's).
+    """The core's ``run_labels.geometry_labels`` of the labelling ``inst``, once per labelling (the chain's, the run's).
     ``corrected``: the chain's state was built from a corrected labelling (None: ``inst`` differs from the run's)."""
-    from clutt3r_core.update.scene_after import chain_geometry
+    from clutt3r_core.update.run_labels import geometry_labels
 
     hit = data._cache.get("chain_geometry")
     if hit is None or hit[1] != corrected or not (hit[0] is inst or np.array_equal(hit[0], inst)):
-        hit = data._cache["chain_geometry"] = (inst, corrected, chain_geometry(data.seg, inst, _pre_contact(data),
-                                                                               corrected))
+        hit = data._cache["chain_geometry"] = (inst, corrected, geometry_labels(data.seg, inst, _pre_contact(data),
+                                                                                corrected))
     return hit[2]
 
 
 def _held_geometry(data, ups, inst: np.ndarray, hist) -> np.ndarray | None:
     """The geometry of the scene after the updates ``ups`` as ``update.chain_inputs`` decides it: the
-    core's ``chain_geometry`` (corrected when the chain's "labels" record has log entries, as the state's
+    core's ``run_labels.geometry_labels`` (corrected when the chain's "labels" record has log entries, as the state's
     step 0 was built), kept only when the state after them holds it (``scene_after.held_geometry``, by
     the digest the loader keeps, ``UpdateFrame.state_rows_sha256``); None: a chain computed by an older
     version keeps the scene it always had (one labelling). At step 0 (no ``ups``) the run's own."""

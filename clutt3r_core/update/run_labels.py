@@ -334,7 +334,7 @@ def geometry_labels(seg, instance: np.ndarray | None = None, pre: np.ndarray | N
     """(N,) int32 the labels before the contact rule of a run's whole cloud (rim voxels included) in
     the ids of a labelling ``instance`` ((N,) int, None: the run's own): the ONE mapping of step 0's
     grasp target (``StepZeroLabels.geometry``), the update state's labels (its fused rows) and the
-    scenes after updates (``scene_after.chain_geometry``).
+    scenes after updates (``scene_after.chain_inputs``, the viewer's ``scene_step.chain_inputs_of``).
 
     The run's own ids: ``refine.run_labels_before_contact(seg)`` (``pre``: it, when already computed).
     Corrected ids: ``corrected_geometry_labels`` over the whole cloud (a fused point mapped among the

@@ -24,7 +24,7 @@ since then are not in it.
 Two labellings of the run's points (session 9): ``instance`` is the chain's labelling as the Edit
 tab shows it (after the object-support contact rule, ``refine.contact_labels``: on noisy depth
 each object's lowest ~2 mm unlabelled); ``geometry`` is the same ids BEFORE that rule
-(``chain_geometry``), what the update's state holds (``state._geometry_labels``). Every
+(``run_labels.geometry_labels``), what the update's state holds (``state._geometry_labels``). Every
 consumer of an object's whole extent reads ``geometry``: which points an update moves with their
 instance and leaves out with a removed one (as the state moved and dropped them), and the grasp
 target (``SceneAfter.grasp_request``, as at step 0: ``run_labels.StepZeroLabels.geometry``).
@@ -53,7 +53,7 @@ import numpy as np
 from clutt3r_core.errors import Clutt3rError, SceneError, SceneFileError
 
 __all__ = ["SceneAfter", "ChainInputs", "build_scene_after", "chain_inputs", "scene_after", "chain_length",
-           "chain_geometry", "compose_motions", "resolve_step", "update_docs", "added_masks", "post_camera",
+           "compose_motions", "resolve_step", "update_docs", "added_masks", "post_camera",
            "post_cameras", "post_eyes", "held_geometry", "state_rows", "oriented_normals", "ADDED_NORMAL_KNN"]
 
 ADDED_NORMAL_KNN = 16
@@ -96,21 +96,6 @@ def oriented_normals(points: np.ndarray, eye: np.ndarray | None, knn: int = ADDE
     return n
 
 
-def chain_geometry(seg, instance: np.ndarray | None = None, pre: np.ndarray | None = None,
-                   corrected: bool | None = None) -> np.ndarray:
-    """(N,) int32 the labels before the contact rule of a run's whole cloud (rim voxels included)
-    in the ids of a chain's labelling ``instance`` ((N,) int, None: the run's own), the geometry
-    its update state holds (``state.state_from_segmentation``) and its scenes move, remove and
-    grasp by (``ChainInputs.geometry``). The one function ``chain_inputs`` and the viewer's
-    ``scene_step.chain_inputs_of`` call: ``run_labels.geometry_labels``, the mapping step 0's grasp
-    target reads too (``StepZeroLabels.geometry``), so step 0 and every step after agree point for
-    point. ``corrected``: whether the state was built from a corrected labelling (its "labels"
-    record has log entries); None: when ``instance`` differs from the run's labels."""
-    from clutt3r_core.update.run_labels import geometry_labels
-
-    return geometry_labels(seg, instance, pre, corrected)
-
-
 @dataclass(frozen=True, eq=False)
 class ChainInputs:
     """What the scene after a chain's first ``len(history)`` updates is built from
@@ -136,8 +121,8 @@ class ChainInputs:
         run, stale, run_share: carried into ``SceneAfter`` as they are (the viewer leaves
             run_share None: no tab reads it from the scene; its Query tab mixes the evidence
             once per chain, ``clutt3r_viewer.panels.query.added_instance_evidence``).
-        geometry: (N,) int32 the same ids before the contact rule (``chain_geometry``; the update
-            state's labels of these points): the points each update moved and removed with their
+        geometry: (N,) int32 the same ids before the contact rule (``run_labels.geometry_labels``;
+            the update state's labels of these points): the points each update moved and removed with their
             instance, and the grasp target's. None, or labels equal to ``instance`` (clean depth,
             the paper preset): ``instance`` itself (a run without the rule, and chains whose state
             holds other labels, ``chain_inputs``).
@@ -475,7 +460,7 @@ def build_scene_after(inp: ChainInputs) -> SceneAfter:
     inst0, geo = inp.instance, inp.geometry
     same = geo is inst0  # ChainInputs without geometry: one labelling
     # the points an update moved and dropped with an instance are those the state holds for it:
-    # its labels before the contact rule (``chain_geometry``), its lowest millimetres included
+    # its labels before the contact rule (``run_labels.geometry_labels``), its lowest millimetres included
     gone = np.isin(geo, list(removed)) & (geo >= 0)
     pts, nrm = inp.points.astype(np.float64), inp.normals.astype(np.float64)
     moved_ids = np.flatnonzero(np.any(M[:inp.num_ids] != np.eye(4), axis=(1, 2)))
@@ -542,7 +527,7 @@ def chain_inputs(run_dir: str | Path, step: int | None = None, seg=None,
     hist = st.history[:step]
     if len(hist) != step:
         raise SceneFileError(dirs[step - 1] / "state.json", f"history has {len(hist)} updates, expected {step}")
-    from clutt3r_core.update.run_labels import LOG_NAME, run_labels, run_share, stale_note
+    from clutt3r_core.update.run_labels import LOG_NAME, geometry_labels, run_labels, run_share, stale_note
 
     stale, share, away = None, None, {}
     inst0, n_run, ids0 = seg.instance, seg.num_instances, np.arange(seg.num_instances)
@@ -560,7 +545,7 @@ def chain_inputs(run_dir: str | Path, step: int | None = None, seg=None,
     # the state holds the added instances still present, moved by the later updates
     added_ids = [k for h in hist for k in h.added]
     sel = np.isin(st.instance, added_ids)
-    geo = held_geometry(chain_geometry(seg, inst0, pre, corrected), seg, [k for h in hist for k in h.removed],
+    geo = held_geometry(geometry_labels(seg, inst0, pre, corrected), seg, [k for h in hist for k in h.removed],
                         state_rows(st.instance, added_ids))
     return ChainInputs(instance=inst0, ids=ids0, num_ids=n_run, history=hist, added_points=st.points[sel],
                        added_colors=st.colors[sel], added_instance=st.instance[sel], stale=stale, run_share=share,

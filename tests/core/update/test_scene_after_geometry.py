@@ -1,5 +1,5 @@
 """After an update the grasp target is the object's whole extent too (session 9,
-``update.scene_after.chain_geometry`` / ``SceneAfter.grasp_target``).
+``update.run_labels.geometry_labels`` / ``SceneAfter.grasp_target``).
 
 On noisy depth the run leaves each object's lowest ~2 mm unlabelled (``refine.contact_labels``).
 The update's state holds the labels before that rule (``state._geometry_labels``), and the grasp
