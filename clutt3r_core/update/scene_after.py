@@ -24,7 +24,7 @@ since then are not in it.
 Two labellings of the run's points (session 9): ``instance`` is the chain's labelling as the Edit
 tab shows it (after the object-support contact rule, ``refine.contact_labels``: on noisy depth
 each object's lowest ~2 mm unlabelled); ``geometry`` is the same ids BEFORE that rule
-(``run_labels.geometry_labels``), what the update's state holds (``state._geometry_labels``). Every
+(``geometry.geometry_labels``), what the update's state holds (``state._geometry_labels``). Every
 consumer of an object's whole extent reads ``geometry``: which points an update moves with their
 instance and leaves out with a removed one (as the state moved and dropped them), and the grasp
 target (``SceneAfter.grasp_request``, as at step 0: ``run_labels.StepZeroLabels.geometry``).
@@ -121,7 +121,7 @@ class ChainInputs:
         run, stale, run_share: carried into ``SceneAfter`` as they are (the viewer leaves
             run_share None: no tab reads it from the scene; its Query tab mixes the evidence
             once per chain, ``clutt3r_viewer.panels.query.added_instance_evidence``).
-        geometry: (N,) int32 the same ids before the contact rule (``run_labels.geometry_labels``;
+        geometry: (N,) int32 the same ids before the contact rule (``geometry.geometry_labels``;
             the update state's labels of these points): the points each update moved and removed with their
             instance, and the grasp target's. None, or labels equal to ``instance`` (clean depth,
             the paper preset): ``instance`` itself (a run without the rule, and chains whose state
@@ -460,7 +460,7 @@ def build_scene_after(inp: ChainInputs) -> SceneAfter:
     inst0, geo = inp.instance, inp.geometry
     same = geo is inst0  # ChainInputs without geometry: one labelling
     # the points an update moved and dropped with an instance are those the state holds for it:
-    # its labels before the contact rule (``run_labels.geometry_labels``), its lowest millimetres included
+    # its labels before the contact rule (``geometry.geometry_labels``), its lowest millimetres included
     gone = np.isin(geo, list(removed)) & (geo >= 0)
     pts, nrm = inp.points.astype(np.float64), inp.normals.astype(np.float64)
     moved_ids = np.flatnonzero(np.any(M[:inp.num_ids] != np.eye(4), axis=(1, 2)))
@@ -527,7 +527,8 @@ def chain_inputs(run_dir: str | Path, step: int | None = None, seg=None,
     hist = st.history[:step]
     if len(hist) != step:
         raise SceneFileError(dirs[step - 1] / "state.json", f"history has {len(hist)} updates, expected {step}")
-    from clutt3r_core.update.run_labels import LOG_NAME, geometry_labels, run_labels, run_share, stale_note
+    from clutt3r_core.update.geometry import geometry_labels
+    from clutt3r_core.update.run_labels import LOG_NAME, run_labels, run_share, stale_note
 
     stale, share, away = None, None, {}
     inst0, n_run, ids0 = seg.instance, seg.num_instances, np.arange(seg.num_instances)
@@ -562,7 +563,8 @@ def held_geometry(geo: np.ndarray, seg, removed, rows: np.ndarray | str) -> np.n
 
     ``rows``: the state's labels less the added instances', in order ((M,) int), or their
     ``run_labels.labels_sha256`` (the viewer's loader keeps the digest, ``UpdateFrame.state_rows_sha256``)."""
-    from clutt3r_core.update.run_labels import fused_count, labels_sha256
+    from clutt3r_core.update.geometry import fused_count
+    from clutt3r_core.update.run_labels import labels_sha256
 
     g = geo[:fused_count(seg)]
     kept = g[~(np.isin(g, list(removed)) & (g >= 0))]

@@ -36,7 +36,8 @@ import numpy as np
 
 from clutt3r_core.errors import SceneError, SceneFileError
 from clutt3r_core.io.images import atomic_write_bytes, atomic_write_npz
-from clutt3r_core.update.run_labels import LabelSource, RunLabels, corrected_geometry_labels, fused_count, run_share
+from clutt3r_core.update.geometry import corrected_geometry_labels, fused_count
+from clutt3r_core.update.run_labels import LabelSource, RunLabels, run_share
 from clutt3r_core.update.types import LOSS_NAMES, PoseTrace, UpdateResult
 
 __all__ = [
