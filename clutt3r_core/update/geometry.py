@@ -8,7 +8,8 @@ instance), the grasp target at step 0 (``run_labels.StepZeroLabels.geometry``) a
 (``scene_after.chain_inputs``, the viewer's ``scene_step.chain_inputs_of``). ``geometry_labels``
 is the one mapping all of them call, in the run's own ids or in a corrected labelling's
 (``corrected_geometry_labels``: the trimmed points follow their instance through the Edit tab's
-merges and splits).
+merges and splits). ``held_geometry`` tells whether a saved chain's state holds that geometry (a
+chain computed by an older version keeps the one labelling it was computed with).
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import numpy as np
 
 from clutt3r_core.errors import SceneError
 
-__all__ = ["fused_count", "corrected_geometry_labels", "geometry_labels"]
+__all__ = ["fused_count", "corrected_geometry_labels", "geometry_labels", "held_geometry", "state_rows"]
 
 
 def fused_count(seg) -> int:
@@ -107,3 +108,28 @@ def geometry_labels(seg, instance: np.ndarray | None = None, pre: np.ndarray | N
     if not corrected:
         return np.array(pre, np.int32)
     return corrected_geometry_labels(seg, inst, len(inst), pre)
+
+
+def held_geometry(geo: np.ndarray, seg, removed, rows: np.ndarray | str) -> np.ndarray | None:
+    """``geo`` when a saved state's run rows are the run's fused points labelled ``geo`` less the
+    removed instances' (``state.apply_update`` keeps the order and drops by these labels): the
+    state's own geometry, exactly; else None (a chain computed by an older version: its state reads
+    the contact rule's labels or an earlier recompute of the labels before it, and its scene is the
+    one it always was, one labelling). The one decision ``chain_inputs`` and the viewer's
+    ``scene_step.chain_inputs_of`` make, O(N).
+
+    ``rows``: the state's labels less the added instances', in order ((M,) int), or their
+    ``run_labels.labels_sha256`` (the viewer's loader keeps the digest, ``UpdateFrame.state_rows_sha256``)."""
+    from clutt3r_core.update.run_labels import labels_sha256
+
+    g = geo[:fused_count(seg)]
+    kept = g[~(np.isin(g, list(removed)) & (g >= 0))]
+    same = labels_sha256(kept) == rows if isinstance(rows, str) else np.array_equal(kept, rows)
+    return geo if same else None
+
+
+def state_rows(instance: np.ndarray, added) -> np.ndarray:
+    """(M,) the run rows of a saved state's labels ``instance``: less the points of the ids the
+    chain's updates added (``added``, those removed since included), in order (``held_geometry``)."""
+    instance = np.asarray(instance)
+    return instance[~np.isin(instance, list(added))]

@@ -34,14 +34,13 @@ a displaced object's contact points stayed where it was (a ghost strip in the co
 ``compose_motions`` is the one place motions of a chain compose (``pose_new = T_world @
 pose_old``).
 
-Over 500 lines (~600) on purpose: the scene, its two inputs' readers (``chain_inputs`` here, the
-viewer's from the same types) and the chain-file helpers they share are one contract; most of the
-length is the dataclasses' documented fields.
+Reading the chain's files (steps, update.json, post cameras) is ``update.chain_files``; which
+geometry a saved state holds is ``update.geometry.held_geometry``. Both modules' names used by
+the commands and the viewer stay importable from here.
 """
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -50,7 +49,12 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
-from clutt3r_core.errors import Clutt3rError, SceneError, SceneFileError
+from clutt3r_core.errors import SceneError, SceneFileError
+# reading the chain's files (steps, update.json, post cameras) lives in ``update.chain_files``; its
+# names stay importable from here, where the commands, the query and the viewer import them
+from clutt3r_core.update.chain_files import (added_masks, chain_length, post_camera, post_cameras, post_eyes,
+                                             resolve_step, update_docs)
+from clutt3r_core.update.geometry import geometry_labels, held_geometry, state_rows
 
 __all__ = ["SceneAfter", "ChainInputs", "build_scene_after", "chain_inputs", "scene_after", "chain_length",
            "compose_motions", "resolve_step", "update_docs", "added_masks", "post_camera",
@@ -360,92 +364,6 @@ class SceneAfter:
                             instance=int(k), views=tuple(views), voxel_size=float(voxel_size))
 
 
-def chain_length(run_dir: str | Path) -> int:
-    from clutt3r_core.update.state import state_dirs
-
-    return len(state_dirs(run_dir))
-
-
-def resolve_step(run_dir: str | Path, step: int | None) -> int:
-    """``step`` checked against the run's chain (None = its latest state); one clear error."""
-    n = chain_length(run_dir)
-    if step is None:
-        return n
-    if not 0 <= int(step) <= n:
-        raise Clutt3rError(f"{run_dir}: --step {step} does not exist: the run has {n} update(s) "
-                           f"(steps 0..{n}; 0 = the run as segmented)")
-    return int(step)
-
-
-def update_docs(run_dir: str | Path, step: int) -> list[tuple[Path, dict]]:
-    """(path, parsed ``update.json``) of the first ``step`` updates of the run's chain."""
-    from clutt3r_core.update.state import state_dirs
-
-    out = []
-    for d in state_dirs(run_dir)[:step]:
-        try:
-            out.append((d / "update.json", json.loads((d / "update.json").read_text())))
-        except (OSError, json.JSONDecodeError) as e:
-            raise SceneFileError(d / "update.json", f"unreadable update ({e})") from None
-    return out
-
-
-def added_masks(run_dir: str | Path, step: int,
-                docs: list[tuple[Path, dict]] | None = None) -> list[tuple[int, int, int]]:
-    """(instance id, frame, mask id in that post view) of every instance the first ``step``
-    updates added from a mask candidate (``update.json`` "new_masks"; ``docs``: ``update_docs``
-    when already read)."""
-    docs = update_docs(run_dir, step) if docs is None else docs
-    return [(int(m["instance"]), int(doc["frame"]), int(m["mask"])) for _, doc in docs
-            for m in doc.get("new_masks", []) if m.get("instance") is not None]
-
-
-def post_camera(path: Path, doc: dict):
-    """The post view's ``Camera`` an update's ``update.json`` (``path``, parsed ``doc``) records
-    as "camera" (written since session 8), else None (older updates); ``SceneFileError`` when invalid."""
-    from clutt3r_core.scene import Camera
-
-    if doc.get("camera") is None:
-        return None
-    try:
-        return Camera.from_json(doc["camera"])
-    except (KeyError, TypeError, ValueError, SceneError) as e:
-        raise SceneFileError(path, f"invalid \"camera\" ({e})") from None
-
-
-def post_cameras(run_dir: str | Path, step: int, docs: list[tuple[Path, dict]] | None = None) -> dict:
-    """{frame: ``Camera``} of the post views of the first ``step`` updates that record one
-    (``post_camera``; ``docs``: ``update_docs`` when already read)."""
-    cams = ((int(doc["frame"]), post_camera(path, doc)) for path, doc in
-            (update_docs(run_dir, step) if docs is None else docs))
-    return {f: c for f, c in cams if c is not None}
-
-
-def post_eyes(run_dir: str | Path, step: int, scene: str | Path | None = None) -> dict:
-    """{frame: camera centre (3,) world metres} of the post views of the first ``step`` updates that
-    added an instance, to orient the added instances' normals (``oriented_normals``): the camera its
-    ``update.json`` records (since session 8), else the scene folder's view of that frame (``scene``,
-    else the one the run records; updates written before, ~0.2 s to load it); a frame with neither is
-    left out (+z). ``clutt3r query`` and ``clutt3r grasp`` both read it, so an added instance has
-    one set of normals whichever asks."""
-    docs = update_docs(run_dir, step)
-    frames = {f for _, f, _ in added_masks(run_dir, step, docs)}
-    eyes = {f: c.T_world_camera[:3, 3] for f, c in post_cameras(run_dir, step, docs).items() if f in frames}
-    if frames - set(eyes):
-        try:
-            from clutt3r_core.io import load_scene
-            from clutt3r_core.runs import run_scene_folder
-
-            folder = Path(scene) if scene is not None else run_scene_folder(run_dir)
-            if folder is not None:
-                for v in load_scene(folder, load_gt=False).views:
-                    if v.frame in frames and v.frame not in eyes:
-                        eyes[v.frame] = v.camera.T_world_camera[:3, 3]
-        except Clutt3rError:
-            pass  # no scene folder: +z (oriented_normals says so)
-    return eyes
-
-
 def build_scene_after(inp: ChainInputs) -> SceneAfter:
     """The scene after ``inp.history``'s updates (module docstring): removed instances' points
     left out (kept in ``run_*`` as ``gone``), displaced ones moved by their composed motions
@@ -527,7 +445,6 @@ def chain_inputs(run_dir: str | Path, step: int | None = None, seg=None,
     hist = st.history[:step]
     if len(hist) != step:
         raise SceneFileError(dirs[step - 1] / "state.json", f"history has {len(hist)} updates, expected {step}")
-    from clutt3r_core.update.geometry import geometry_labels
     from clutt3r_core.update.run_labels import LOG_NAME, run_labels, run_share, stale_note
 
     stale, share, away = None, None, {}
@@ -551,32 +468,6 @@ def chain_inputs(run_dir: str | Path, step: int | None = None, seg=None,
     return ChainInputs(instance=inst0, ids=ids0, num_ids=n_run, history=hist, added_points=st.points[sel],
                        added_colors=st.colors[sel], added_instance=st.instance[sel], stale=stale, run_share=share,
                        geometry=geo, source=st.labels, corrected_away=away, **base)
-
-
-def held_geometry(geo: np.ndarray, seg, removed, rows: np.ndarray | str) -> np.ndarray | None:
-    """``geo`` when a saved state's run rows are the run's fused points labelled ``geo`` less the
-    removed instances' (``state.apply_update`` keeps the order and drops by these labels): the
-    state's own geometry, exactly; else None (a chain computed by an older version: its state reads
-    the contact rule's labels or an earlier recompute of the labels before it, and its scene is the
-    one it always was, one labelling). The one decision ``chain_inputs`` and the viewer's
-    ``scene_step.chain_inputs_of`` make, O(N).
-
-    ``rows``: the state's labels less the added instances', in order ((M,) int), or their
-    ``run_labels.labels_sha256`` (the viewer's loader keeps the digest, ``UpdateFrame.state_rows_sha256``)."""
-    from clutt3r_core.update.geometry import fused_count
-    from clutt3r_core.update.run_labels import labels_sha256
-
-    g = geo[:fused_count(seg)]
-    kept = g[~(np.isin(g, list(removed)) & (g >= 0))]
-    same = labels_sha256(kept) == rows if isinstance(rows, str) else np.array_equal(kept, rows)
-    return geo if same else None
-
-
-def state_rows(instance: np.ndarray, added) -> np.ndarray:
-    """(M,) the run rows of a saved state's labels ``instance``: less the points of the ids the
-    chain's updates added (``added``, those removed since included), in order (``held_geometry``)."""
-    instance = np.asarray(instance)
-    return instance[~np.isin(instance, list(added))]
 
 
 def scene_after(run_dir: str | Path, step: int | None = None, seg=None,
