@@ -128,12 +128,12 @@ def chain_inputs_of(data, step: int):
 
 
 def _pre_contact(data) -> np.ndarray:
-    """``refine.run_labels_before_contact(data.seg)``, computed once per run."""
+    """The core's ``update.geometry.run_geometry(data.seg)`` (the objects' geometry), computed once per run."""
     pre = data._cache.get("pre_contact")
     if pre is None:
-        from clutt3r_core.segmentation.refine import run_labels_before_contact
+        from clutt3r_core.update.geometry import run_geometry
 
-        pre = data._cache["pre_contact"] = np.asarray(run_labels_before_contact(data.seg))
+        pre = data._cache["pre_contact"] = np.asarray(run_geometry(data.seg))
     return pre
 
 
@@ -277,7 +277,7 @@ def step_zero_of(data, annotations):
     run's own ids), what the Query and Grasps tabs rank and plan on before any update. Cached on
     ``data`` for one labelling: every edit (or undo) makes a new ``current`` object, so the next call
     after an edit recomputes, never a stale copy. The labels before the contact rule are computed
-    once per run (``refine.run_labels_before_contact``)."""
+    once per run (``update.geometry.run_geometry``)."""
     from clutt3r_core.update.run_labels import step_zero_labels
 
     pre = _pre_contact(data)

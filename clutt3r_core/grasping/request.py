@@ -37,12 +37,12 @@ def request_from_segmentation(seg, instance: int, views: tuple[DepthView, ...] =
     elif target is None:
         if not 0 <= k < seg.num_instances:
             raise SceneError(f"instance {k} does not exist: the run has instances 0..{seg.num_instances - 1}")
-        # the instance with its contact to the support (``refine.run_labels_before_contact``): the
-        # contact relabelling is for the reported labels; the planner must not count the target's
-        # own lowest millimetres as foreign (docs/benchmark/strict-iou.md, session 8)
-        from clutt3r_core.segmentation.refine import run_labels_before_contact
+        # the instance's geometry (``update.geometry.run_geometry``: with its contact to the support,
+        # its weak echoes and the fill's points): the trimming rules are for the reported labels; the
+        # planner must not count the target's own lowest millimetres as foreign (strict-iou.md, session 8)
+        from clutt3r_core.update.geometry import run_geometry
 
-        target = np.asarray(run_labels_before_contact(seg)) == k
+        target = run_geometry(seg) == k
     return GraspRequest(points=seg.points, normals=seg.normals, target=np.asarray(target, bool), instance=k,
                         views=tuple(views))
 

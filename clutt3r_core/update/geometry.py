@@ -1,10 +1,12 @@
 """Which of a run's points are an object's geometry: what an update moves and a grasp targets.
 
 The labels a run shows (``seg.instance``, the Edit tab) are those after the rules that trim them
-for the segmentation's score (``refine.contact_labels``: on noisy depth each object's lowest ~2 mm
-unlabelled). Consumers of an object's whole extent read the labels before those rules instead:
-the update's state (``state.state_from_segmentation``: which points move and leave with their
-instance), the grasp target at step 0 (``run_labels.StepZeroLabels.geometry``) and after updates
+for the segmentation's score: weak echoes unlabelled (``refine.weak_echoes``, off by default) and,
+on noisy depth, each object's lowest ~2 mm unlabelled (``refine.contact_labels``). Consumers of an
+object's whole extent read ``run_geometry`` instead: the labels before both rules, plus the points
+the contact fill gave an object (off by default). They are the update's state
+(``state.state_from_segmentation``: which points move and leave with their instance), the grasp
+target at step 0 (``run_labels.StepZeroLabels.geometry``, ``grasping.request``) and after updates
 (``scene_after.chain_inputs``, the viewer's ``scene_step.chain_inputs_of``). ``geometry_labels``
 is the one mapping all of them call, in the run's own ids or in a corrected labelling's
 (``corrected_geometry_labels``: the trimmed points follow their instance through the Edit tab's
@@ -18,7 +20,7 @@ import numpy as np
 
 from clutt3r_core.errors import SceneError
 
-__all__ = ["fused_count", "corrected_geometry_labels", "geometry_labels", "held_geometry", "state_rows"]
+__all__ = ["fused_count", "run_geometry", "corrected_geometry_labels", "geometry_labels", "held_geometry", "state_rows"]
 
 
 def fused_count(seg) -> int:
@@ -29,15 +31,78 @@ def fused_count(seg) -> int:
     return len(seg.points) - (surface.rim if surface is not None else 0)
 
 
+def run_geometry(seg) -> np.ndarray:
+    """(N,) int32 the run's own ids of its whole cloud (rim voxels included) as objects' geometry,
+    -1 = none: the labels before the two rules that trim the shown labels, with the fill's points.
+
+    - Weak echoes (``refine.weak_echo_ratio`` > 0, off by default): the flanks the rule unlabels are
+      depth noise spilling off the object's own surface; the planner counted them as foreign points
+      between the fingers (generated easy seed 0 at ratio 0.2: grasps per instance 31 / 5 / 4 / 2 with
+      the rule off, 12 / 0 / 0 / 0 with it on; docs/corrections.md, session 10) and an update left
+      them behind. Here they keep the vote's label: the segmented cloud's labels with the ratio 0
+      (``refine.labels_before_contact``), the rim voxels attached to those again (``rim.attach_labels``
+      with the run's settings) and the instances added after the vote (``segmentation.unvoted``)
+      as the run has them: the labels the run held before both rules, which a run segmented with
+      the echo rule off holds before the contact rule (tests/core/update/test_geometry_rules.py).
+    - The contact (``refine.contact_height``): the cleared points keep their label
+      (``refine.run_labels_before_contact``, as before).
+    - The contact fill (``refine.contact_fill_low`` / ``_high``, off by default): the points it
+      labelled (unlabelled before the rule, an object's in the run) ARE that object's: walls the
+      support rule took, confirmed by its masks (``contact_fill_mask_share``). They are its
+      geometry, so they move and leave with it and are part of its grasp target (until session 10 a
+      displaced object's filled walls stayed behind, unlabelled). A point the vote labelled (echo
+      cleared, then filled with another object) keeps the vote's label.
+
+    Default config (echoes and fill off): ``refine.run_labels_before_contact(seg)`` exactly."""
+    from clutt3r_core.segmentation.refine import run_labels_before_contact
+
+    inst = np.asarray(seg.instance)
+    pre = np.asarray(run_labels_before_contact(seg))  # the run's own labels where the contact rule did not run
+    # only the fill labels a point the labels before the rule leave unlabelled (``refine.contact_labels``)
+    filled = (pre < 0) & (inst >= 0)
+    geo = _labels_without_echoes(seg) if seg.trace.config.refine.weak_echo_ratio > 0 else pre
+    if filled.any():
+        geo = np.where((geo < 0) & filled, inst, geo)
+    return np.asarray(geo, np.int32)
+
+
+def _labels_without_echoes(seg) -> np.ndarray:
+    """(N,) the run's labels before the weak-echo and contact rules (``run_geometry``): the pipeline's
+    computation of the labels before the contact (``refine.run_labels_before_contact``) with
+    ``weak_echo_ratio`` 0, whether or not the contact rule ran."""
+    from dataclasses import replace
+
+    from clutt3r_core.segmentation.refine import labels_before_contact
+
+    cfg = seg.trace.config
+    inst = np.asarray(seg.instance)
+    n = fused_count(seg)  # the segmented cloud; its rim voxels follow
+    base = labels_before_contact(seg.trace.vote.sv_label, seg.sv_labels[:n], seg.sv_support, seg.points[:n],
+                                 seg.normals[:n], seg.counts[:n], cfg.pointcloud.voxel_size, cfg.vote,
+                                 replace(cfg.refine, weak_echo_ratio=0.0))
+    # instances added after the vote (ids from the vote's count on) keep the run's label, as in
+    # ``run_labels_before_contact``: the vote never labelled them
+    added = inst[:n] >= len(seg.trace.vote.instance_group)
+    base = np.where(added, inst[:n], base)
+    if n == len(inst):
+        return base
+    from clutt3r_core.rim import attach_labels
+
+    att = attach_labels(seg.points[:n], base, seg.points[n:], cfg.pointcloud.surface_rim_attach_k,
+                        cfg.pointcloud.surface_rim_attach_distance)
+    return np.concatenate([base, att.label])
+
+
 def corrected_geometry_labels(seg, corrected: np.ndarray, n: int, pre: np.ndarray | None = None) -> np.ndarray:
-    """(n,) int32: the corrected labels of the run's first n points, with the points the contact rule
-    cleared (labelled before it, unlabelled in the run and left unlabelled by the corrections) given
-    the corrected id of the nearest point of their own pre-contact instance that has one. A merge
-    carries them to the merged id, a split to the nearer part; a deleted instance keeps them
-    unlabelled (none of its points has an id). Without this a correction brought the contact's
-    labels back into the update's geometry (``state._geometry_labels``: the moved clamp read
-    static) and into the grasp target (``StepZeroLabels.geometry``). The points the contact fill
-    labelled (unlabelled before the rule) are left unlabelled, as in ``run_labels_before_contact``.
+    """(n,) int32: the corrected labels of the run's first n points, with the points the trimming rules
+    cleared (the geometry's, ``run_geometry``, unlabelled in the run and left unlabelled by the
+    corrections: the contact's lowest millimetres, the weak echoes) given the corrected id of the
+    nearest point of their own geometry instance that has one. A merge carries them to the merged
+    id, a split to the nearer part; a deleted instance keeps them unlabelled (none of its points has
+    an id). Without this a correction brought the contact's labels back into the update's geometry
+    (``state._geometry_labels``: the moved clamp read static) and into the grasp target
+    (``StepZeroLabels.geometry``). The points the contact fill labelled are the geometry's and take
+    their corrected id like any labelled point (a deleted instance's: none).
 
     Where the nearest point is searched: a fused point (the first ``fused_count(seg)``) among the
     fused points only, as the update's state maps them (it holds no rim voxel), so its first rows
@@ -47,16 +112,14 @@ def corrected_geometry_labels(seg, corrected: np.ndarray, n: int, pre: np.ndarra
     this one mapping (session 9: with the rim voxels searched for fused points too, one fused
     point of a split on generated easy seed 11 was I3 at step 0 and I2 in the state).
 
-    ``pre``: ``refine.run_labels_before_contact(seg)`` when already computed (the viewer keeps it)."""
+    ``pre``: ``run_geometry(seg)`` when already computed (the viewer keeps it)."""
     if pre is None:
-        from clutt3r_core.segmentation.refine import run_labels_before_contact
-
-        pre = run_labels_before_contact(seg)
+        pre = run_geometry(seg)
     out = np.array(corrected[:n], np.int32)
     pre = np.asarray(pre)[:n]
     run = np.asarray(seg.instance[:n])
-    # the points the contact fill labelled (unlabelled before the rule) are not the geometry's either,
-    # whatever id a correction gave them (``refine.contact_labels``; off by default, on with ``contact_fill_low`` / ``_high``)
+    # a point the run labels that is no geometry stays none, whatever id a correction gave it (none
+    # since session 10, when the fill's points joined the geometry: kept for a ``pre`` that lacks them)
     out[(pre < 0) & (run >= 0)] = -1
     cleared = (pre >= 0) & (run < 0) & (out < 0)
     if not cleared.any():
@@ -86,20 +149,18 @@ def corrected_geometry_labels(seg, corrected: np.ndarray, n: int, pre: np.ndarra
 
 def geometry_labels(seg, instance: np.ndarray | None = None, pre: np.ndarray | None = None,
                     corrected: bool | None = None) -> np.ndarray:
-    """(N,) int32 the labels before the contact rule of a run's whole cloud (rim voxels included) in
+    """(N,) int32 the geometry (``run_geometry``) of a run's whole cloud (rim voxels included) in
     the ids of a labelling ``instance`` ((N,) int, None: the run's own): the ONE mapping of step 0's
     grasp target (``StepZeroLabels.geometry``), the update state's labels (its fused rows) and the
     scenes after updates (``scene_after.chain_inputs``, the viewer's ``scene_step.chain_inputs_of``).
 
-    The run's own ids: ``refine.run_labels_before_contact(seg)`` (``pre``: it, when already computed).
+    The run's own ids: ``run_geometry(seg)`` (``pre``: it, when already computed).
     Corrected ids: ``corrected_geometry_labels`` over the whole cloud (a fused point mapped among the
     fused points, as the state maps it). ``corrected``: whether the labelling is a corrected one (a
     chain: its state's "labels" record has log entries); None: when ``instance`` differs from the
     run's labels."""
     if pre is None:
-        from clutt3r_core.segmentation.refine import run_labels_before_contact
-
-        pre = run_labels_before_contact(seg)
+        pre = run_geometry(seg)
     inst = np.asarray(seg.instance if instance is None else instance, np.int32)
     if len(inst) != len(seg.points) or len(pre) != len(seg.points):
         raise SceneError(f"geometry labels: labels of {len(inst)} / {len(pre)} points for a run of {len(seg.points)}")

@@ -32,7 +32,7 @@ from clutt3r_core.errors import SceneError, SceneFileError
 from clutt3r_core.run_files import CORRECTION_LOG as LOG_NAME
 # the geometry mapping lives in ``update.geometry``; its names stay importable from here (the state,
 # the viewer, refine.py and the tests import them from this module)
-from clutt3r_core.update.geometry import corrected_geometry_labels, fused_count, geometry_labels
+from clutt3r_core.update.geometry import corrected_geometry_labels, fused_count, geometry_labels, run_geometry
 
 __all__ = ["LabelSource", "RunLabels", "run_labels", "labels_sha256", "chain_source", "labels_change", "stale_note",
            "run_share", "fused_count", "LOG_NAME", "StepZeroLabels", "step_zero_labels", "corrected_geometry_labels",
@@ -317,17 +317,18 @@ class StepZeroLabels:
         seg: the run's ``pipeline.Segmentation``.
         corrected: True when the ids are not the run's own (the edits change labels).
         gone: {id: reason} for ids that are no target (deleted, merged, emptied), ``gone_reasons``.
-        pre: ``refine.run_labels_before_contact(seg)`` when already computed (the viewer keeps it).
+        pre: ``geometry.run_geometry(seg)`` when already computed (the viewer keeps it).
 
     Computed once each when first read (the viewer builds one per edit; an edit must not pay for
     them, nor a query for the geometry):
 
-    - ``geometry`` ((N,) int32): the labels before the contact rule in the same ids over the run's
-      whole cloud, as the update's geometry reads them (``geometry.geometry_labels``, the one mapping of step 0,
-      the state and the scenes after updates); the grasp
-      target of id k is ``geometry == k`` (a merged id: the union of its parts' pre-contact
-      points). With the run's own ids it is ``run_labels_before_contact(seg)`` exactly (what the
-      grasp target always was).
+    - ``geometry`` ((N,) int32): the objects' geometry (``geometry.run_geometry``: the labels before
+      the weak-echo and contact rules, with the contact fill's points) in the same ids over the run's
+      whole cloud, as the update's state reads it (``geometry.geometry_labels``, the one mapping of
+      step 0, the state and the scenes after updates); the grasp target of id k is ``geometry == k``
+      (a merged id: the union of its parts' geometry). With the run's own ids it is
+      ``run_geometry(seg)`` exactly (with the default config: ``refine.run_labels_before_contact``,
+      what the grasp target always was).
     - ``share`` ((num_ids, run instances) float64, None when not ``corrected``): ``run_share``, to
       carry per-run-instance evidence to the corrected ids (``query.corrected_evidence``).
     """
@@ -349,9 +350,7 @@ class StepZeroLabels:
     def geometry(self) -> np.ndarray:
         pre = self.pre
         if pre is None:
-            from clutt3r_core.segmentation.refine import run_labels_before_contact
-
-            pre = run_labels_before_contact(self.seg)
+            pre = run_geometry(self.seg)
         g = geometry_labels(self.seg, self.labels.instance, pre, self.corrected)
         g.setflags(write=False)
         return g
@@ -404,8 +403,9 @@ def step_zero_labels(seg, run_dir: str | Path | None = None, annotations=None,
     edits in effect on ``seg`` (the run's ``pipeline.Segmentation``), read from ``run_dir`` (the log
     on disk) or from ``annotations`` (an open ``annotations.Annotations``: the viewer's live edits).
     Neither, or no log: the run's own labels. The ids stay the run's (``share`` None) when the edits
-    change no label; ``geometry`` is then ``refine.run_labels_before_contact(seg)`` exactly (what the
-    grasp target always was). ``pre``: that array when already computed."""
+    change no label; ``geometry`` is then ``geometry.run_geometry(seg)`` exactly (with the default
+    config the labels before the contact rule, what the grasp target always was). ``pre``: that
+    array when already computed."""
     if annotations is None and run_dir is not None and (Path(run_dir) / LOG_NAME).is_file():
         annotations = _open_log(Path(run_dir), seg)
     lab, ops = None, ()

@@ -23,8 +23,9 @@ since then are not in it.
 
 Two labellings of the run's points (session 9): ``instance`` is the chain's labelling as the Edit
 tab shows it (after the object-support contact rule, ``refine.contact_labels``: on noisy depth
-each object's lowest ~2 mm unlabelled); ``geometry`` is the same ids BEFORE that rule
-(``geometry.geometry_labels``), what the update's state holds (``state._geometry_labels``). Every
+each object's lowest ~2 mm unlabelled; and the weak-echo rule when on); ``geometry`` is the same
+ids BEFORE those rules, with the contact fill's points (``geometry.geometry_labels``), what the
+update's state holds (``state._geometry_labels``). Every
 consumer of an object's whole extent reads ``geometry``: which points an update moves with their
 instance and leaves out with a removed one (as the state moved and dropped them), and the grasp
 target (``SceneAfter.grasp_request``, as at step 0: ``run_labels.StepZeroLabels.geometry``).
@@ -54,7 +55,7 @@ from clutt3r_core.errors import SceneError, SceneFileError
 # names stay importable from here, where the commands, the query and the viewer import them
 from clutt3r_core.update.chain_files import (added_masks, chain_length, post_camera, post_cameras, post_eyes,
                                              resolve_step, update_docs)
-from clutt3r_core.update.geometry import geometry_labels, held_geometry, state_rows
+from clutt3r_core.update.geometry import geometry_labels, held_geometry, run_geometry, state_rows
 
 __all__ = ["SceneAfter", "ChainInputs", "build_scene_after", "chain_inputs", "scene_after", "chain_length",
            "compose_motions", "resolve_step", "update_docs", "added_masks", "post_camera",
@@ -387,8 +388,9 @@ def build_scene_after(inp: ChainInputs) -> SceneAfter:
         pts[sel] = pts[sel] @ M[k, :3, :3].T + M[k, :3, 3]
         nrm[sel] = nrm[sel] @ M[k, :3, :3].T
     if not same:
-        # a point the contact rule gave an instance that its geometry does not (the fill, off by
-        # default) stayed in place when that instance moved or left: it is no part of it there
+        # a point the shown labels give an instance that its geometry does not (none from the contact
+        # fill since session 10: its points are the geometry's) stayed in place when that instance
+        # moved or left: it is no part of it there
         left = np.isin(inst0, np.concatenate([moved_ids, list(removed)]).astype(np.int64)) & (inst0 != geo) & ~gone
         if left.any():
             inst0 = np.where(left, -1, inst0)
@@ -431,13 +433,11 @@ def chain_inputs(run_dir: str | Path, step: int | None = None, seg=None,
         from clutt3r_core.runs import load_run
 
         seg = load_run(run_dir)
-    from clutt3r_core.segmentation.refine import run_labels_before_contact
-
     dirs = state_dirs(run_dir)
     step = resolve_step(run_dir, step)
     base = dict(points=seg.points, colors=seg.colors, normals=seg.normals, n_updates=len(dirs),
                 eyes=eyes or {}, run=run_dir)
-    pre = run_labels_before_contact(seg)  # ~30 ms CPU at 120k points (sample_seq4)
+    pre = run_geometry(seg)  # ~30 ms CPU at 120k points (sample_seq4)
     if step == 0:
         return ChainInputs(instance=seg.instance, ids=np.arange(seg.num_instances), num_ids=seg.num_instances,
                            geometry=pre, **base)

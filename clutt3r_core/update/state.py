@@ -36,7 +36,7 @@ import numpy as np
 
 from clutt3r_core.errors import SceneError, SceneFileError
 from clutt3r_core.io.images import atomic_write_bytes, atomic_write_npz
-from clutt3r_core.update.geometry import corrected_geometry_labels, fused_count
+from clutt3r_core.update.geometry import corrected_geometry_labels, fused_count, run_geometry
 from clutt3r_core.update.run_labels import LabelSource, RunLabels, run_share
 from clutt3r_core.update.types import LOSS_NAMES, PoseTrace, UpdateResult
 
@@ -210,7 +210,7 @@ def state_from_segmentation(seg, voxel_size: float = 0.005, run: Path | None = N
                           embedder=seg.trace.embedder, voxel_size=voxel_size, run=run)
     if len(labels.instance) != len(seg.points):
         raise SceneError(f"corrected labels have {len(labels.instance)} points, the run {len(seg.points)}")
-    # the contact's cleared points mapped through the corrections (``corrected_geometry_labels``; the
+    # the trimmed points (contact, weak echoes) mapped through the corrections (``corrected_geometry_labels``; the
     # grasp target at step 0 reads the same mapping, ``run_labels.StepZeroLabels.geometry``)
     inst = corrected_geometry_labels(seg, labels.instance, n)
     ids = np.unique(inst[inst >= 0]).astype(np.int32)  # rim-only instances have no point here
@@ -223,14 +223,13 @@ def state_from_segmentation(seg, voxel_size: float = 0.005, run: Path | None = N
 
 
 def _geometry_labels(seg, n: int) -> np.ndarray:
-    """(n,) the labels of the run's first n points that the update's geometry reads: the run's own,
-    or, where the run relabelled the object-support contact after the vote (``refine.contact_labels``),
-    the labels before it (``refine.run_labels_before_contact``). Measured on sample_seq1 frame 8:
-    with the contact's labels the moved clamp was reported static (its lowest millimetres
-    unlabelled), as with the rim voxels above (docs/benchmark/strict-iou.md, session 8)."""
-    from clutt3r_core.segmentation.refine import run_labels_before_contact
-
-    return run_labels_before_contact(seg)[:n]
+    """(n,) the labels of the run's first n points that the update's geometry reads: the objects'
+    geometry (``geometry.run_geometry``: the run's own labels, or where the run trimmed them after the
+    vote, the labels before the weak-echo and contact rules, with the contact fill's points).
+    Measured on sample_seq1 frame 8: with the contact's labels the moved clamp was reported static
+    (its lowest millimetres unlabelled), as with the rim voxels above (docs/benchmark/strict-iou.md,
+    session 8)."""
+    return run_geometry(seg)[:n]
 
 
 def state_from_run(run_dir: str | Path) -> SceneState:

@@ -217,18 +217,24 @@ def test_update_state_and_grasp_target_read_the_labels_before_the_contact_rule()
                                                       "refine.contact_fill_high": 0.012}))
     off = segment(scene, with_fields(SegmentConfig(), {"refine.contact_height": 0.0, "refine.contact_fill_high": 0.0}))
     assert not np.array_equal(on.instance, off.instance)
-    s_on, s_off = state_from_segmentation(on), state_from_segmentation(off)
-    assert np.array_equal(s_on.instance, s_off.instance) and np.array_equal(s_on.points, s_off.points)
-    # the whole run's labels before the rule (rim voxels attached again) are the rule-off run's, and
-    # so is every grasp request's target (the planner sees the object with its contact)
+    # the whole run's labels before the rule (rim voxels attached again) are the rule-off run's; the
+    # update's geometry and every grasp request's target are those plus the fill's points, which
+    # are the object's (session 10, ``update.geometry.run_geometry``; the planner sees the object
+    # with its contact)
     from clutt3r_core.grasping.request import request_from_segmentation
     from clutt3r_core.segmentation.refine import run_labels_before_contact
 
     assert on.trace.surface.rim > 0  # the rim voxels are exercised
     assert np.array_equal(run_labels_before_contact(on), off.instance)
     assert np.array_equal(run_labels_before_contact(off), off.instance)
+    filled = (off.instance < 0) & (on.instance >= 0)
+    assert filled.any()  # the fill labelled points: the test tells
+    geo = np.where(filled, on.instance, off.instance)
+    s_on, s_off = state_from_segmentation(on), state_from_segmentation(off)
+    n = len(s_on.instance)
+    assert np.array_equal(s_on.instance, geo[:n]) and np.array_equal(s_on.points, s_off.points)
     for k in range(off.num_instances):
-        assert np.array_equal(request_from_segmentation(on, k).target, request_from_segmentation(off, k).target)
+        assert np.array_equal(request_from_segmentation(on, k).target, geo == k)
 
 
 def test_a_corrected_update_state_keeps_the_contact_with_the_corrected_ids():
