@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from clutt3r_core.annotations import Annotations, Merge
 
@@ -177,3 +178,35 @@ def test_a_merge_carries_the_filled_walls_to_the_merged_id(segs, fill_run):
     assert (z.geometry[both] == a).all() and z.target(a)[both].all()
     n = fused_count(seg)
     np.testing.assert_array_equal(state_from_run(fill_run).instance, z.geometry[:n])
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 10_000), st.sampled_from(["merge", "delete"]))
+def test_a_correction_carries_cleared_and_filled_points_with_their_instance(seed, edit):
+    """Property (``corrected_geometry_labels`` over any geometry and shown labels): the shown labels
+    are the geometry with some points cleared (echoes, contact) and some unlabelled points filled (the
+    fill, which the geometry holds); after the Edit tab merges instance b into a, the corrected
+    geometry is the geometry with b's points a's, cleared and filled ones included; after it deletes
+    b, b's points are none and every other point keeps its geometry id (rim voxels included)."""
+    from types import SimpleNamespace
+
+    from clutt3r_core.update.geometry import corrected_geometry_labels
+
+    rng = np.random.default_rng(seed)
+    n, k = 80, 4
+    geo = rng.integers(-1, k, n).astype(np.int32)
+    geo[:k] = np.arange(k)  # every instance keeps a shown point (the cleared ones' nearest source)
+    shown = geo.copy()
+    cleared = (rng.random(n) < 0.25) & (geo >= 0)
+    cleared[:k] = False
+    shown[cleared] = -1
+    filled = rng.random(n) < 0.1  # the fill's points: an instance's in the shown labels and the geometry
+    filled[:k] = False
+    shown[filled] = geo[filled] = rng.integers(0, k, int(filled.sum()))
+    seg = SimpleNamespace(points=rng.normal(size=(n, 3)), instance=shown,
+                          trace=SimpleNamespace(surface=SimpleNamespace(rim=int(rng.integers(0, 20)))))
+    a, b = (int(x) for x in rng.choice(k, 2, replace=False))
+    into = a if edit == "merge" else -1
+    corrected = np.where(shown == b, into, shown).astype(np.int32)
+    got = corrected_geometry_labels(seg, corrected, n, geo)
+    np.testing.assert_array_equal(got, np.where(geo == b, into, geo))
