@@ -56,13 +56,19 @@ def run_geometry(seg) -> np.ndarray:
     Default config (echoes and fill off): ``refine.run_labels_before_contact(seg)`` exactly."""
     from clutt3r_core.segmentation.refine import run_labels_before_contact
 
+    refine = seg.trace.config.refine
     inst = np.asarray(seg.instance)
-    pre = np.asarray(run_labels_before_contact(seg))  # the run's own labels where the contact rule did not run
-    # only the fill labels a point the labels before the rule leave unlabelled (``refine.contact_labels``)
-    filled = (pre < 0) & (inst >= 0)
-    geo = _labels_without_echoes(seg) if seg.trace.config.refine.weak_echo_ratio > 0 else pre
-    if filled.any():
-        geo = np.where((geo < 0) & filled, inst, geo)
+    pre = None
+    if refine.weak_echo_ratio <= 0 or refine.contact_fill_high > refine.contact_fill_low:
+        # the run's own labels where the contact rule did not run (with the echo rule on it recomputes
+        # the echoes: ~100 ms CPU at 114k points, sample_seq1, so only when the fill needs it)
+        pre = np.asarray(run_labels_before_contact(seg))
+    geo = _labels_without_echoes(seg) if refine.weak_echo_ratio > 0 else pre
+    if pre is not None:
+        # only the fill labels a point the labels before the rule leave unlabelled (``refine.contact_labels``)
+        filled = (pre < 0) & (inst >= 0)
+        if filled.any():
+            geo = np.where((geo < 0) & filled, inst, geo)
     return np.asarray(geo, np.int32)
 
 

@@ -39,11 +39,12 @@ def scene():
 @pytest.fixture(scope="module")
 def segs(scene):
     """{name: Segmentation} of the scene: the default config (echo and fill off), the echo rule on
-    (with and without the contact rule), the fill on."""
+    (with and without the contact rule), the fill on, both on."""
     from clutt3r_core.config import SegmentConfig, with_fields
     from clutt3r_core.pipeline import segment
 
-    cfgs = {"off": {}, "echo": ECHO, "echo_alone": {**ECHO, "refine.contact_height": 0.0}, "fill": FILL}
+    cfgs = {"off": {}, "echo": ECHO, "echo_alone": {**ECHO, "refine.contact_height": 0.0}, "fill": FILL,
+            "echo_fill": {**ECHO, **FILL}}
     return {name: segment(scene, with_fields(SegmentConfig(), f)) for name, f in cfgs.items()}
 
 
@@ -94,6 +95,19 @@ def test_the_geometry_holds_the_points_the_echo_rule_cleared(segs, name):
     a, b = 0, 1
     merged = np.where(on.instance == b, a, on.instance).astype(np.int32)
     np.testing.assert_array_equal(geometry_labels(on, merged), np.where(want == b, a, want))
+
+
+def test_with_both_rules_on_the_geometry_holds_the_echoes_and_the_filled_walls(segs):
+    """Echo rule and fill on: the geometry is the rule-off run's labels before the contact rule with
+    the fill's points added (those the vote left unlabelled), nothing else."""
+    from clutt3r_core.segmentation.refine import run_labels_before_contact
+    from clutt3r_core.update.geometry import run_geometry
+
+    on = segs["echo_fill"]
+    want = run_labels_before_contact(segs["off"])
+    filled = _filled(on) & (want < 0)
+    assert filled.any() and ((want >= 0) & (on.instance < 0)).any()
+    np.testing.assert_array_equal(run_geometry(on), np.where(filled, on.instance, want))
 
 
 @pytest.fixture
