@@ -13,7 +13,7 @@ that they are noise off the surface), the labelling ceiling, then the means; and
     .venv/bin/python benchmarks/bench_weak_echo.py --seeds 2 --ratios 0.2 --base 'pointcloud.surface="voxel-mean"'
 
 ``--geometry`` also reports whether the labels the geometry consumers read
-(``refine.run_labels_before_contact``: the grasp request's target, the update state) are the
+(``update.geometry.run_geometry``: the grasp request's target, the update state) are the
 default's, point for point. Scenes are cached under --cache (default /tmp/bench_cache, the
 suite's); seeds >= 6 are the lead's held-out scenes and are refused.
 """
@@ -31,7 +31,8 @@ from clutt3r_core.evaluation.breakdown import ERROR_KINDS, error_breakdown
 from clutt3r_core.evaluation.metrics import EVAL_VOXEL, evaluate_instances
 from clutt3r_core.evaluation.runner import _load_prepared, synth_suite
 from clutt3r_core.pipeline import segment
-from clutt3r_core.segmentation.refine import run_labels_before_contact, weak_echoes
+from clutt3r_core.segmentation.refine import weak_echoes
+from clutt3r_core.update.geometry import run_geometry
 from clutt3r_core.update.run_labels import fused_count
 
 from bench_config_ab import parse_variant  # this folder's sibling script
@@ -107,8 +108,7 @@ def main() -> None:
                                                                                  seg.instance, gt.points)
                 r["other_changes"] = int(((base.instance != seg.instance) & ~lost).sum())
                 if args.geometry:
-                    r["geometry_equal"] = bool(np.array_equal(run_labels_before_contact(seg),
-                                                              run_labels_before_contact(base)))
+                    r["geometry_equal"] = bool(np.array_equal(run_geometry(seg), run_geometry(base)))
             print(json.dumps(r), flush=True)
             rows[name].append(r)
     for name, rs in rows.items():

@@ -62,11 +62,10 @@ class RefineConfig:
     """Ours, OFF by default (0 = off, the paper's text): a fused voxel holding fewer than this
     fraction of the raw points of a voxel one or two voxel edges away along its normal is a weak
     echo of that surface (depth noise spilling off it) and is left unlabelled (it stays in the
-    cloud). Off because the grasp planner counts every unlabelled point between the fingers as
-    foreign (``AntipodalConfig.max_foreign_points`` 0): with 0.2, an object's own unlabelled flanks
-    rejected nearly every grasp (generated easy seed 0: 30 / 4 / 4 grasps -> 0 / 0 / 0); it needs
-    the planner to tell echoes from other objects first. At 0.2:
-    Measured with RealSense-like depth, AP (0.50:0.95) on held-out seeds 0-1: +10.2 / +1.7 easy,
+    cloud). The update's geometry and the grasp target keep the cleared flanks as their object's
+    (``update.geometry.run_geometry``, session 10: generated easy seed 0 at 0.2, grasps per instance
+    31 / 5 / 4 / 0 / 2 / 0 with the rule off or on; before, the planner counted the flanks as foreign
+    points between the fingers: 12 / 0 / 0 / 0 / 0 / 0). Measured with RealSense-like depth, AP (0.50:0.95) on held-out seeds 0-1: +10.2 / +1.7 easy,
     +3.8 / +2.8 intermediate, +1.9 / +1.7 hard, AP@25 and AP@50 unchanged; chosen on seeds 2-3
     (0.2: +6.8 / +4.4 easy, +4.9 / +4.4 intermediate, +0.2 / +2.4 hard; 0.3 gained less on 5 of 6:
     it also drops true surface). Those gains were on the plain voxel-mean fusion. Session 9, on top of
@@ -74,7 +73,7 @@ class RefineConfig:
     one process): tuning seeds 2-3 mean AP 53.50 -> 53.52 / 53.35 / 52.03 (0.05 / 0.1 / 0.2; one scene
     -2.7 at each; 0.3: 53.70 -> 50.78), check seeds 0-1 55.05 -> 56.13 / 56.18 (0.1 / 0.2), seeds 4-5
     56.37 -> 55.17 / 53.20, AP25 / AP50 unchanged: no gain where settings are chosen, so still off
-    whatever the grasp planner reads. On the estimated surface the flanks are thinner and
+    (the grasp target no longer depends on it). On the estimated surface the flanks are thinner and
     the rule clears 1 true-surface cell for every 2-4 off-GT cells (voxel-mean fusion: 1 for 7-21).
     docs/benchmark/strict-iou.md, "Session 9: weak echoes revisited"."""
     contact_height: float = 0.002
@@ -86,8 +85,8 @@ class RefineConfig:
     surface estimate (noisy depth; on clean depth the thin cloud's lowest points are the object's:
     easy_0000 lost an object at IoU 0.5) and only for objects whose support noise is at most
     ``contact_max_noise``. Consumers that need the object's whole extent (the update's geometry,
-    the grasp planner's target) read the labels before the rule (``run_labels_before_contact``),
-    so grasps and updates are those of the rule off. Session 8, RealSense-like depth, one process
+    the grasp planner's target) read the labels before the rule (``update.geometry.run_geometry``,
+    built on ``run_labels_before_contact``), so grasps and updates are those of the rule off. Session 8, RealSense-like depth, one process
     A/B, mean of 6 scenes (AP25 / AP50 unchanged, no scene lower): AP 51.7 -> 53.7 (tuning seeds
     2-3), 53.6 -> 55.1 (held-out seeds 0-1); 3 mm 53.1 on tuning. Measured from the global plane
     (session 4) the same 2 mm gave 53.2 / 54.8 (hard_0003's tray floor stands 7-8 mm above it).
@@ -501,7 +500,8 @@ def run_labels_before_contact(seg) -> np.ndarray:
     reads those (the pipeline labelled them before they moved); measured on two generated easy
     RealSense-like scenes (seeds 0-1, 320 x 240) it still gave the contact-off run's labels exactly.
 
-    Consumers that need an object's whole extent read these: the update's geometry (the moved
+    Consumers that need an object's whole extent read these (through ``update.geometry.run_geometry``,
+    which also undoes the weak-echo rule and adds the contact fill's points): the update's geometry (the moved
     clamp of sample_seq1 was read static with its lowest millimetres unlabelled) and the grasp
     planner's target (a target's own contact points counted as foreign, and its pairs changed:
     two low objects of generated easy seed 0 lost their only successful grasps).

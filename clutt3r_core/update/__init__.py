@@ -80,7 +80,7 @@ class UpdateFrame:
             recorded, chains written before session 7), as ``scene_after.chain_inputs`` reads it.
         state_rows_sha256: ``run_labels.labels_sha256`` of the run rows of the state saved after this
             update (its labels less the added instances', in order), or None when unknown: what
-            ``scene_after.held_geometry`` checks (a chain written by an older version keeps its
+            ``geometry.held_geometry`` checks (a chain written by an older version keeps its
             scene), so the viewer decides as ``clutt3r grasp --step`` without holding the rows.
         corrected_away: {id: why it is no instance} of the ids the corrections of ``instance0``
             merged, deleted or emptied (``run_labels.RunLabels.gone``; empty: none, or the run as segmented).
