@@ -116,7 +116,10 @@ class SuperVoxelConfig:
     background by the other rules covers >= half of its visible points), and in >= 2 views;
     0 = off (ours, session 9: on hard seeds 14-17, 2 of 3 objects lost to the support were a
     can's top level with a tray rim and a hammer's top joined to its touching neighbours' in
-    one patch wider than max_object_extent; ``pipeline`` applies it once the masks are read)."""
+    one patch wider than max_object_extent; ``pipeline`` applies it once the masks are read). The
+    masks it re-admits get leaf edges over the un-marked super-voxels; the edges between masks the
+    other rules already admitted stay as without it (``support.kept_spatial``, session 10: with
+    the un-marked columns in them, a box's top and side masks split into two instances)."""
 
     max_object_extent: float = 0.3
     """A super-voxel whose bounding box (in the plane frame) has a side this long,
