@@ -251,7 +251,7 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
         share = config.supervoxels.planar_mask_views
         first_support, first_object = sv.support, ~background  # before any un-marking
         if share > 0 and sv.planar is not None and sv.planar.any() and len(background):
-            # ours (session 9), off by default: rule 3's planar support that object masks cover
+            # ours (sessions 9-10; ``planar-tops``): rule 3's planar support that object masks cover
             # in most views is an object's flat top (``support.planar_covered``); the masks'
             # background flags are first taken without that support, then again without it; the
             # leaf edges of the masks admitted the first time stay theirs (``support.kept_spatial``)

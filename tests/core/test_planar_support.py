@@ -161,12 +161,13 @@ def test_pipeline_unmarking_keeps_the_default_masks_edges(monkeypatch):
 
     import clutt3r_core.pipeline as pl
     from clutt3r_core.config import SegmentConfig, with_fields
-    from tests.core._tiny_run import tiny_scene, tiny_segmentation
+    from tests.core._tiny_run import tiny_scene
 
-    base = tiny_segmentation()
     build = pl.build_supervoxels
     monkeypatch.setattr(pl, "build_supervoxels", lambda cloud, cfg: (
         lambda sv: dataclasses.replace(sv, planar=sv.support.copy()))(build(cloud, cfg)))
+    base = pl.segment(tiny_scene(), with_fields(SegmentConfig(), {"supervoxels.planar_mask_views": 0.0}),
+                      progress=False)
     seg = pl.segment(tiny_scene(), with_fields(SegmentConfig(), {"supervoxels.planar_mask_views": 0.5}),
                      progress=False)
     assert (base.sv_support & ~seg.sv_support).any()  # something was un-marked
