@@ -137,6 +137,10 @@ ADDITIONS: tuple[Addition, ...] = (
     Addition("rim-attach", "with the surface estimate, lone unmoved points next to kept voxels (object rims) are kept "
              "apart and take the majority label of their 6 nearest segmented voxels after the vote",
              (("pointcloud.surface_rim_neighbours", 1, 0),)),
+    Addition("planar-tops", "a super-voxel only the planar-patch support rule marked is an object's top when object "
+             "masks cover it in >= 50 % of the views that see it (>= 2): un-marked, its masks re-admitted (the "
+             "edges between the masks admitted before keep their S_spatial)",
+             (("supervoxels.planar_mask_views", 0.5, 0.0),), needs=("support",)),
     Addition("table-contact", "with the surface estimate, object points under 2 mm above the support measured around "
              "the object are left unlabelled (the update and the grasp target read the labels before it)",
              (("refine.contact_height", 0.002, 0.0),)),

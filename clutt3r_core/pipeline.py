@@ -46,7 +46,7 @@ from clutt3r_core.segmentation.trees import InstanceTree, build_tree_overlaps
 from clutt3r_core.segmentation.unvoted import unvoted_instances
 from clutt3r_core.segmentation.vote import supervoxel_vote
 from clutt3r_core.supervoxels import build_supervoxels
-from clutt3r_core.support import planar_covered
+from clutt3r_core.support import kept_spatial, planar_covered
 
 __all__ = [
     "SegmentConfig",
@@ -249,10 +249,12 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
         occupancy = np.concatenate(occ_parts, axis=0) if occ_parts else np.zeros((0, sv.num), np.float32)
         background = np.concatenate(bg_parts) if bg_parts else np.zeros(0, bool)
         share = config.supervoxels.planar_mask_views
+        first_support, first_object = sv.support, ~background  # before any un-marking
         if share > 0 and sv.planar is not None and sv.planar.any() and len(background):
-            # ours (session 9), off by default: rule 3's planar support that object masks cover
+            # ours (sessions 9-10; ``planar-tops``): rule 3's planar support that object masks cover
             # in most views is an object's flat top (``support.planar_covered``); the masks'
-            # background flags are first taken without that support, then again without it
+            # background flags are first taken without that support, then again without it; the
+            # leaf edges of the masks admitted the first time stay theirs (``support.kept_spatial``)
             core_voxel = (sv.support & ~sv.planar)[sv.labels]
             obj = ~np.concatenate([background_masks(h, core_voxel, config.background_fraction) for h in view_hits])
             visible = np.stack([np.bincount(sv.labels[cloud.pixel_voxel.pixels(vi)[1]], minlength=sv.num) > 0
@@ -282,9 +284,12 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
 
     with timer("leaf_graph"):
         # support super-voxels carry no evidence of object identity (findings point 4)
-        occ_obj = (np.where(sv.support[None, :], 0.0, occupancy).astype(np.float32)
-                   if config.grouping.spatial_excludes_support else occupancy)
-        s_spat = spatial_similarity(occ_obj, sv.weights)
+        if not config.grouping.spatial_excludes_support:
+            s_spat = spatial_similarity(occupancy, sv.weights)
+        else:
+            # the masks the un-marking re-admitted link over the un-marked super-voxels; those the
+            # default admitted keep the edges it gave them (``support.kept_spatial``; ours, session 10)
+            s_spat = kept_spatial(occupancy, sv.weights, sv.support, first_support, first_object)
         s_sem = semantic_similarity(embeddings)
         no_edge = nodes.view[:, None] == nodes.view[None, :]
         no_edge |= background[:, None] | background[None, :]

@@ -13,6 +13,7 @@ import numpy as np
 
 from clutt3r_core.graph_ops import concat_ranges, connected_components
 from clutt3r_core.pointcloud import FusedCloud
+from clutt3r_core.segmentation.grouping import spatial_similarity
 
 if TYPE_CHECKING:
     from clutt3r_core.supervoxels import SuperVoxelConfig
@@ -296,3 +297,40 @@ def planar_covered(planar: np.ndarray, occupancy: np.ndarray, mask_view: np.ndar
     n_vis = visible[:, cols].sum(axis=0)
     out[cols] = (n_cov >= 2) & (n_cov >= min_share * np.maximum(n_vis, 1))
     return out
+
+
+def kept_spatial(occupancy: np.ndarray, weights: np.ndarray, support: np.ndarray, first_support: np.ndarray,
+                 first_object: np.ndarray) -> np.ndarray:
+    """(U, U) float32 S_spatial (eq. 2) over the super-voxels that are not ``support``, except
+    between two ``first_object`` masks: theirs stays over the super-voxels that are not
+    ``first_support`` (ours, session 10; ``SuperVoxelConfig.planar_mask_views``).
+
+    ``occupancy``: (U, K) o_i(k); ``weights``: (K,) w_hat_k; ``support``: (K,) bool, the support
+    after ``planar_covered`` un-marked part of ``first_support`` (K,) bool, the support the masks'
+    first background flags were taken with (``support`` must be a subset of it); ``first_object``:
+    (U,) bool, the masks that were not background under ``first_support`` (every mask when
+    background masks are not excluded).
+
+    The un-marking adds to the grouping: the masks it re-admits (a flat top's masks seen from
+    above) link to every mask over the un-marked super-voxels, but the edges between the masks the
+    default already grouped stay as the default computed them. With the un-marked columns in those
+    edges too, an object's masks from above (which cover its top) and from the side (which do not)
+    drift apart, and greedy stage 1 split a box with two masks in 5 of its 8 views into two
+    instances (generated hard_0002; docs/benchmark/strict-iou.md, session 10).
+    """
+    occ = np.asarray(occupancy, np.float32)
+    support = np.asarray(support, bool)
+    first_support = np.asarray(first_support, bool)
+    first_object = np.asarray(first_object, bool)
+    u, k = occ.shape
+    if support.shape != (k,) or first_support.shape != (k,) or first_object.shape != (u,) or len(weights) != k:
+        raise ValueError(f"kept_spatial: shapes {occ.shape}, {np.shape(weights)}, {support.shape}, "
+                         f"{first_support.shape}, {first_object.shape}")
+    if (support & ~first_support).any():
+        raise ValueError("kept_spatial: support must be a subset of first_support (the un-marking only removes)")
+    s = spatial_similarity(np.where(support[None, :], 0.0, occ).astype(np.float32), weights)
+    keep = np.flatnonzero(first_object)
+    if (support != first_support).any() and len(keep):
+        s[np.ix_(keep, keep)] = spatial_similarity(
+            np.where(first_support[None, :], 0.0, occ[keep]).astype(np.float32), weights)
+    return s

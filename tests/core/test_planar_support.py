@@ -1,5 +1,6 @@
 """Rule-3-only support (``SuperVoxels.planar``) and its mask guard ``support.planar_covered``
-(``SuperVoxelConfig.planar_mask_views``, ours, session 9)."""
+(``SuperVoxelConfig.planar_mask_views``, ours, session 9), and the leaf edges after the
+un-marking (``support.kept_spatial``, session 10)."""
 from __future__ import annotations
 
 import numpy as np
@@ -10,7 +11,8 @@ from hypothesis import strategies as st
 from clutt3r_core.errors import SceneError
 from clutt3r_core.pointcloud import FusedCloud
 from clutt3r_core.supervoxels import SuperVoxelConfig, build_supervoxels
-from clutt3r_core.support import planar_covered
+from clutt3r_core.segmentation.grouping import spatial_similarity
+from clutt3r_core.support import kept_spatial, planar_covered
 
 
 def _grid(x0, x1, y0, y1, z, step=0.005):
@@ -114,3 +116,64 @@ def test_pipeline_guard_only_removes_support():
     np.testing.assert_array_equal(seg.sv_labels, base.sv_labels)
     assert not (seg.sv_support & ~base.sv_support).any()
     assert seg.instance.max() < len(seg.scores)
+
+
+def _excluding(occ: np.ndarray, support: np.ndarray, w: np.ndarray) -> np.ndarray:
+    return spatial_similarity(np.where(support[None, :], 0.0, occ).astype(np.float32), w)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000))
+def test_kept_spatial_keeps_the_first_edges_and_links_the_readmitted(seed):
+    # invariants: pairs of first-object masks have the S_spatial of the support before the
+    # un-marking; every pair with another mask has the S_spatial of the support after it; with
+    # nothing un-marked it is the plain S_spatial over the non-support super-voxels
+    rng = np.random.default_rng(seed)
+    u, k = 10, 14
+    occ = np.where(rng.random((u, k)) < 0.5, rng.random((u, k)), 0.0).astype(np.float32)
+    w = rng.random(k) + 0.1
+    w /= w.sum()
+    first = rng.random(k) < 0.5
+    support = first & (rng.random(k) < 0.5)
+    first_object = rng.random(u) < 0.6
+    s = kept_spatial(occ, w, support, first, first_object)
+    before, after = _excluding(occ, first, w), _excluding(occ, support, w)
+    keep = np.ix_(first_object, first_object)
+    np.testing.assert_allclose(s[keep], before[keep], atol=1e-6)
+    other = ~(first_object[:, None] & first_object[None, :])
+    np.testing.assert_allclose(s[other], after[other], atol=1e-6)
+    np.testing.assert_allclose(kept_spatial(occ, w, first, first, first_object), before, atol=1e-6)
+    assert np.allclose(s, s.T, atol=1e-6)
+
+
+def test_kept_spatial_rejects_support_that_grew():
+    occ = np.ones((2, 3), np.float32)
+    with pytest.raises(ValueError, match="subset"):
+        kept_spatial(occ, np.full(3, 1 / 3), np.array([True, True, False]), np.array([True, False, False]),
+                     np.ones(2, bool))
+
+
+def test_pipeline_unmarking_keeps_the_default_masks_edges(monkeypatch):
+    # every support super-voxel of the tiny scene made "rule 3 only", so that the guard un-marks
+    # the table under its masks and re-admits them: the masks the default grouped keep exactly
+    # the default's leaf edges, the re-admitted ones get edges of their own
+    import dataclasses
+
+    import clutt3r_core.pipeline as pl
+    from clutt3r_core.config import SegmentConfig, with_fields
+    from tests.core._tiny_run import tiny_scene
+
+    build = pl.build_supervoxels
+    monkeypatch.setattr(pl, "build_supervoxels", lambda cloud, cfg: (
+        lambda sv: dataclasses.replace(sv, planar=sv.support.copy()))(build(cloud, cfg)))
+    base = pl.segment(tiny_scene(), with_fields(SegmentConfig(), {"supervoxels.planar_mask_views": 0.0}),
+                      progress=False)
+    seg = pl.segment(tiny_scene(), with_fields(SegmentConfig(), {"supervoxels.planar_mask_views": 0.5}),
+                     progress=False)
+    assert (base.sv_support & ~seg.sv_support).any()  # something was un-marked
+    first_object = ~base.trace.nodes.background
+    readmitted = base.trace.nodes.background & ~seg.trace.nodes.background
+    assert readmitted.any()
+    keep = np.ix_(first_object, first_object)
+    np.testing.assert_array_equal(seg.trace.s_spatial[keep], base.trace.s_spatial[keep])
+    assert np.isfinite(seg.trace.s_spatial[np.ix_(readmitted, first_object)]).any()
