@@ -87,6 +87,7 @@ def spanning_votes(
     min_cover: float,
     max_confirm: float,
     occupied: float = 0.5,
+    spannable: np.ndarray | None = None,
 ) -> SpanningVotes:
     """Masks of each group that span another group's footprint (module docstring).
 
@@ -95,6 +96,8 @@ def spanning_votes(
     eligible: (G,) bool groups that vote (``min_group_size``): only they can be spanned or span;
     min_cover, max_confirm, occupied: ``VoteConfig.span_cover``, ``span_confirm``,
     ``span_occupancy``. ``min_cover`` <= 0 gives no spanning mask (the rule is off).
+    spannable: (G,) bool groups that may be spanned (``VoteConfig.span_instances_only``: the
+    instances of the vote before); None = every eligible group.
     """
     occ = np.asarray(occupancy, np.float32)
     u, k = occ.shape
@@ -104,6 +107,8 @@ def spanning_votes(
     if len(sv_counts) != k or len(support) != k or len(eligible) != g:
         raise SceneError(f"spanning_votes: sv_counts / support need ({k},) and eligible ({g},), got "
                          f"{np.shape(sv_counts)}, {np.shape(support)}, {np.shape(eligible)}")
+    if spannable is not None and np.shape(spannable) != (g,):
+        raise SceneError(f"spanning_votes: spannable needs ({g},), got {np.shape(spannable)}")
     pts = np.where(np.asarray(support, bool), 0.0, np.asarray(sv_counts, np.float64))
     member = np.full(u, -1, np.int64)
     for gi, m in enumerate(groups):
@@ -128,6 +133,8 @@ def spanning_votes(
     cover = over / np.maximum(fb_pts, 1e-12)[None, :]
     confirm = conf / np.maximum(over, 1e-12)
     span = (cover >= min_cover) & (confirm < max_confirm) & (fb_pts > 0)[None, :]
+    if spannable is not None:
+        span &= np.asarray(spannable, bool)[None, :]
     span[np.arange(len(nodes)), member[nodes]] = False  # a group does not span itself
     rows, cols = np.nonzero(span)
     if not len(rows):
@@ -176,8 +183,12 @@ def span_revote(
     records ``span_cleared`` ((0, 2) when no mask spans: then it is ``vote`` otherwise unchanged).
     """
     eligible = np.array([len(m) >= cfg.min_group_size for m in groups], bool)
+    spannable = None
+    if cfg.span_instances_only:  # only a group the vote made an instance gets super-voxels back
+        spannable = np.zeros(len(groups), bool)
+        spannable[np.asarray(vote.instance_group, np.int64)] = True
     span = spanning_votes(groups, occupancy, sv_counts, support, eligible, cfg.span_cover, cfg.span_confirm,
-                          cfg.span_occupancy)
+                          cfg.span_occupancy, spannable)
     if not len(span.cleared):
         return replace(vote, span_cleared=span.cleared)
     new = vote_on(cleared_occupancy(occupancy, span.cleared))

@@ -105,6 +105,14 @@ class VoteConfig:
     span_occupancy: float = 0.5
     """Ours (session 9), unitless o_i(k): a mask occupies a super-voxel at this occupancy; a group's
     footprint is where its summed occupancy reaches it."""
+    span_instances_only: bool = True
+    """Ours (session 10; only read when ``span_cover`` > 0): only a group that is an instance in the
+    vote before the rule (it won ``min_instance_points``) can be spanned. The rule gives an object's
+    instance back the super-voxels a neighbour's spanning mask took; a group that won nothing is a
+    fragment or a stray mask, and clearing for it made it a new instance next to the object's own:
+    on intermediate + hard seeds 4-5 and 10-17 every one of the 6 instances the rule created (all
+    one-mask groups, 39-224 raw points) was a second instance of an object that already had one
+    (docs/benchmark/strict-iou.md, "Session 10"). False = session 9's rule (any group voting)."""
 
     def __post_init__(self) -> None:
         if self.smooth_max_size < 0 or self.smooth_k < 1 or not 1 <= self.smooth_min_agree <= self.smooth_k:

@@ -59,7 +59,8 @@ def test_no_mask_spans_when_off_when_its_group_confirms_it_or_on_support():
 
 
 def test_the_spanned_object_gets_its_super_voxels_back_and_the_scores_stay():
-    cfg = dataclasses.replace(VoteConfig(), span_cover=0.5)
+    # session 9's rule: any voting group can be spanned, also one that won nothing
+    cfg = dataclasses.replace(VoteConfig(), span_cover=0.5, span_instances_only=False)
 
     def vote_on(o):
         return supervoxel_vote(GROUPS, o, COUNTS, NO_SUPPORT, np.zeros((5, 5)), 5, cfg)
@@ -148,3 +149,43 @@ def test_a_run_with_the_rule_saves_its_cleared_pairs_and_explains_them(tmp_path,
     assert int(sc[0, 0]) in [n for n, _ in e.span_cleared]
     explain_command(d, supervoxel=k)
     assert "did not vote here" in capsys.readouterr().out
+
+
+def test_only_an_instance_can_be_spanned_by_default():
+    """Session 10: clearing for a group that won nothing made it a second instance of an object."""
+    cfg = dataclasses.replace(VoteConfig(), span_cover=0.5)
+    assert cfg.span_instances_only
+    weak_b = _occ(b_occ=(0.55, 0.4))
+
+    def vote_on(o, counts=COUNTS):
+        return supervoxel_vote(GROUPS, o, counts, np.zeros(o.shape[1], bool), np.zeros((5, 5)), 5, cfg)
+
+    before = vote_on(weak_b)
+    assert len(before.instance_group) == 1  # B won nothing: not an instance, so not spanned
+    after = span_revote(GROUPS, weak_b, COUNTS, NO_SUPPORT, before, vote_on, cfg)
+    assert after.span_cleared.shape == (0, 2)
+    np.testing.assert_array_equal(after.sv_label, before.sv_label)
+    # the same masks, but B also holds three super-voxels of its own (30 raw points): an instance
+    occ = np.concatenate([weak_b, np.zeros((5, 3), np.float32)], axis=1)
+    occ[3, K:] = 1.0
+    counts = np.full(K + 3, 10)
+    vote3 = lambda o: vote_on(o, counts)  # noqa: E731
+    before = vote3(occ)
+    assert len(before.instance_group) == 2
+    b = int(np.flatnonzero(before.instance_group == 1)[0])
+    assert (before.sv_label[5:K] != b).all()  # A's spanning mask took B's super-voxels 5-7
+    after = span_revote(GROUPS, occ, counts, np.zeros(K + 3, bool), before, vote3, cfg)
+    assert after.span_cleared.tolist() == [[0, 5], [0, 6], [0, 7]]
+    b = int(np.flatnonzero(after.instance_group == 1)[0])
+    assert (after.sv_label[5:] == b).all()
+
+
+def test_spannable_restricts_the_spanned_groups_only():
+    occ = _occ()
+    every = spanning_votes(GROUPS, occ, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5)
+    same = spanning_votes(GROUPS, occ, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5, spannable=np.array([False, True]))
+    none = spanning_votes(GROUPS, occ, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5, spannable=np.array([True, False]))
+    np.testing.assert_array_equal(same.cleared, every.cleared)
+    assert len(every.cleared) and not len(none.cleared) and not len(none.node)
+    with pytest.raises(SceneError, match="spannable"):
+        spanning_votes(GROUPS, occ, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5, spannable=np.ones(3, bool))
