@@ -428,7 +428,8 @@ class SupervoxelExplanation:
                          f"{_inst(gv.instance)}" + ("" if gv.eligible else " (below min_group_size: no vote)"))
         for node, gi in self.span_cleared:
             lines.append(f"  mask node {node} (group {gi}) did not vote here: it spans another group's footprint "
-                         "that its own group's other masks do not cover (vote.span_cover)")
+                         "that its own group's other masks do not cover (vote.span_cover), or its group is not "
+                         "an instance and a spanning mask's vote was cleared here (vote.span_instances_only)")
         if not self.recorded:
             lines.append("the full tally and the reason are not recorded in this run")
         return "\n".join(lines)

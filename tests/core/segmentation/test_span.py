@@ -189,3 +189,38 @@ def test_spannable_restricts_the_spanned_groups_only():
     assert len(every.cleared) and not len(none.cleared) and not len(none.node)
     with pytest.raises(SceneError, match="spannable"):
         spanning_votes(GROUPS, occ, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5, spannable=np.ones(3, bool))
+
+
+def test_a_group_that_won_nothing_does_not_take_a_cleared_super_voxel():
+    """Mask 5 (group C) beats B on super-voxel 5 once A's spanning mask is cleared; C won 20 raw
+    points before (no instance), 30 with it: session 9's rule made C a new instance."""
+    occ = np.concatenate([_occ(b_occ=(0.55, 0.4)), np.zeros((5, 5), np.float32)], axis=1)
+    occ[3, K:K + 3] = 1.0  # B's own super-voxels 8-10: B is an instance
+    occ = np.concatenate([occ, np.zeros((1, K + 5), np.float32)])
+    occ[5, 5] = 0.96  # C: A's mask 0 (1.0) > C > B (0.95) on super-voxel 5
+    occ[5, K + 3:] = 1.0
+    groups = GROUPS + ((5,),)
+    counts = np.full(K + 5, 10)
+    no_support = np.zeros(K + 5, bool)
+
+    def run(only: bool):
+        cfg = dataclasses.replace(VoteConfig(), span_cover=0.5, span_instances_only=only)
+
+        def vote_on(o):
+            return supervoxel_vote(groups, o, counts, no_support, np.zeros((6, 6)), 5, cfg)
+
+        before = vote_on(occ)
+        assert sorted(before.instance_group.tolist()) == [0, 1]
+        return span_revote(groups, occ, counts, no_support, before, vote_on, cfg)
+
+    old, new = run(False), run(True)
+    assert sorted(old.instance_group.tolist()) == [0, 1, 2]  # C became an instance
+    assert sorted(new.instance_group.tolist()) == [0, 1]
+    b = int(np.flatnonzero(new.instance_group == 1)[0])
+    assert (new.sv_label[5:K + 3] == b).all()
+    assert [5, 5] in new.span_cleared.tolist() and [5, 5] not in old.span_cleared.tolist()
+    # what the trace records replays the vote (the viewer clears these pairs and votes again)
+    cfg = dataclasses.replace(VoteConfig(), span_cover=0.5)
+    replay = supervoxel_vote(groups, cleared_occupancy(occ, new.span_cleared), counts, no_support,
+                             np.zeros((6, 6)), 5, cfg)
+    np.testing.assert_array_equal(replay.sv_group, new.sv_group)
