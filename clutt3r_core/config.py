@@ -230,6 +230,7 @@ ADDED_AFTER_V1: dict[str, Any] = {
     "vote.span_confirm": 0.5,
     "vote.span_occupancy": 0.5,
     "vote.span_instances_only": False,
+    "vote.span_min_views": 0.0,
     "refine.min_won_fraction": 0.0,
     "refine.weak_echo_ratio": 0.0,
     "refine.contact_height": 0.0,

@@ -93,6 +93,8 @@ def spanning_votes(
     max_confirm: float,
     occupied: float = 0.5,
     spannable: np.ndarray | None = None,
+    node_view: np.ndarray | None = None,
+    min_views: int = 0,
 ) -> SpanningVotes:
     """Masks of each group that span another group's footprint (module docstring).
 
@@ -103,6 +105,8 @@ def spanning_votes(
     ``span_occupancy``. ``min_cover`` <= 0 gives no spanning mask (the rule is off).
     spannable: (G,) bool groups that may be spanned (``VoteConfig.span_instances_only``: the
     instances of the vote before); None = every eligible group.
+    node_view, min_views: (U,) view of each node; a mask spans only when the other masks of its group
+    come from at least ``min_views`` distinct views (``VoteConfig.span_min_views``; 0 = no minimum).
     """
     occ = np.asarray(occupancy, np.float32)
     u, k = occ.shape
@@ -114,6 +118,8 @@ def spanning_votes(
                          f"{np.shape(sv_counts)}, {np.shape(support)}, {np.shape(eligible)}")
     if spannable is not None and np.shape(spannable) != (g,):
         raise SceneError(f"spanning_votes: spannable needs ({g},), got {np.shape(spannable)}")
+    if min_views > 0 and (node_view is None or np.shape(node_view) != (u,)):
+        raise SceneError(f"spanning_votes: min_views needs node_view ({u},), got {np.shape(node_view)}")
     pts = np.where(np.asarray(support, bool), 0.0, np.asarray(sv_counts, np.float64))
     member = np.full(u, -1, np.int64)
     for gi, m in enumerate(groups):
@@ -140,6 +146,8 @@ def spanning_votes(
     span = (cover >= min_cover) & (confirm < max_confirm) & (fb_pts > 0)[None, :]
     if spannable is not None:
         span &= np.asarray(spannable, bool)[None, :]
+    if min_views > 0:
+        span &= (_other_views(groups, member, nodes, np.asarray(node_view)) >= min_views)[:, None]
     span[np.arange(len(nodes)), member[nodes]] = False  # a group does not span itself
     rows, cols = np.nonzero(span)
     if not len(rows):
@@ -161,6 +169,16 @@ def spanning_votes(
     )
 
 
+def _other_views(groups: tuple[tuple[int, ...], ...], member: np.ndarray, nodes: np.ndarray,
+                 node_view: np.ndarray) -> np.ndarray:
+    """(n,) int distinct views among the other masks of each node's group (a group may hold two
+    near-identical masks of one view: ``grouping.duplicate_iou``)."""
+    out = np.zeros(len(nodes), np.int64)
+    for r, i in enumerate(nodes.tolist()):
+        out[r] = len({int(node_view[j]) for j in groups[int(member[i])] if j != i})
+    return out
+
+
 def cleared_occupancy(occupancy: np.ndarray, cleared: np.ndarray) -> np.ndarray:
     """(U, K) float32 copy of ``occupancy`` with o_i(k) = 0 at every (node, super-voxel) pair of
     ``cleared`` ((C, 2) int); the occupancy itself when there is none."""
@@ -179,6 +197,8 @@ def span_revote(
     vote: VoteResult,
     vote_on: Callable[[np.ndarray], VoteResult],
     cfg: VoteConfig,
+    node_view: np.ndarray | None = None,
+    n_views: int = 0,
 ) -> VoteResult:
     """The vote on ``groups`` again with the spanning masks' occupancies cleared (module docstring).
 
@@ -187,15 +207,17 @@ def span_revote(
     its confidence from ``vote`` (instances renumbered by it, ties to the lower id); the result
     records ``span_cleared`` ((0, 2) when no mask spans: then it is ``vote`` otherwise unchanged).
     With ``cfg.span_instances_only`` only the instances of ``vote`` can be spanned, and only they vote
-    on the cleared super-voxels (``_instances_take``; those pairs are recorded too).
+    on the cleared super-voxels (``_instances_take``; those pairs are recorded too). node_view (U,)
+    and n_views: each node's view and the views segmented (``cfg.span_min_views``; None / 0 = no minimum).
     """
     eligible = np.array([len(m) >= cfg.min_group_size for m in groups], bool)
     spannable = None
     if cfg.span_instances_only:  # only a group the vote made an instance gets super-voxels back
         spannable = np.zeros(len(groups), bool)
         spannable[np.asarray(vote.instance_group, np.int64)] = True
+    min_views = int(np.ceil(cfg.span_min_views * n_views - 1e-9)) if node_view is not None else 0
     span = spanning_votes(groups, occupancy, sv_counts, support, eligible, cfg.span_cover, cfg.span_confirm,
-                          cfg.span_occupancy, spannable)
+                          cfg.span_occupancy, spannable, node_view, min_views)
     if not len(span.cleared):
         return replace(vote, span_cleared=span.cleared)
     cleared = span.cleared

@@ -113,11 +113,20 @@ class VoteConfig:
     on intermediate + hard seeds 4-5 and 10-17 every one of the 6 instances the rule created (all
     one-mask groups, 39-224 raw points) was a second instance of an object that already had one
     (docs/benchmark/strict-iou.md, "Session 10"). False = session 9's rule (any group voting)."""
+    span_min_views: float = 0.0
+    """Ours (session 10; only read when ``span_cover`` > 0), share of the segmented views: a mask spans
+    only when the other masks of its group come from at least this share of the views (ceil; 0 = any
+    group). ``span_confirm`` reads the group's other masks' silence on the spanned footprint as
+    evidence that it is another object; with few other masks that silence is weak: on intermediate
+    + hard seeds 4-5 and 10-17 every spanning pair whose group had at most 4 masks (8 views) joined
+    two groups of ONE object (a whole-object mask over a fragment group), none of two objects."""
 
     def __post_init__(self) -> None:
         if self.smooth_max_size < 0 or self.smooth_k < 1 or not 1 <= self.smooth_min_agree <= self.smooth_k:
             raise SceneError("VoteConfig needs smooth_max_size >= 0, smooth_k >= 1 and 1 <= smooth_min_agree <= "
                              f"smooth_k, got {self.smooth_max_size}, {self.smooth_k}, {self.smooth_min_agree}")
+        if not 0 <= self.span_min_views <= 1:
+            raise SceneError(f"VoteConfig.span_min_views must be in [0, 1], got {self.span_min_views}")
         if self.span_cover < 0 or not 0 < self.span_confirm <= 1 or not 0 < self.span_occupancy <= 1:
             raise SceneError("VoteConfig needs span_cover >= 0 and span_confirm, span_occupancy in (0, 1], got "
                              f"{self.span_cover}, {self.span_confirm}, {self.span_occupancy}")
