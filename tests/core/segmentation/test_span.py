@@ -224,3 +224,30 @@ def test_a_group_that_won_nothing_does_not_take_a_cleared_super_voxel():
     replay = supervoxel_vote(groups, cleared_occupancy(occ, new.span_cleared), counts, no_support,
                              np.zeros((6, 6)), 5, cfg)
     np.testing.assert_array_equal(replay.sv_group, new.sv_group)
+
+
+def test_a_group_with_few_views_does_not_span():
+    """Session 10: with ``min_views`` the spanning mask's group needs other masks from that many views."""
+    occ, view = _occ(), np.arange(5)  # group A: masks 0, 1, 2 in views 0, 1, 2
+    base = spanning_votes(GROUPS, occ, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5)
+    two = spanning_votes(GROUPS, occ, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5, node_view=view, min_views=2)
+    three = spanning_votes(GROUPS, occ, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5, node_view=view, min_views=3)
+    np.testing.assert_array_equal(two.cleared, base.cleared)  # mask 0's group: 2 other views
+    assert not len(three.cleared)
+    # two masks of one view (near-identical duplicates) count as one view
+    dup = spanning_votes(GROUPS, occ, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5, node_view=np.array([0, 1, 1, 3, 4]),
+                         min_views=2)
+    assert not len(dup.cleared)
+    with pytest.raises(SceneError, match="node_view"):
+        spanning_votes(GROUPS, occ, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5, min_views=2)
+    # span_revote: ceil(share x views); 0.4 x 5 views = 2 other views needed, 0.5 x 5 -> 3
+    for share, n in ((0.4, 3), (0.5, 0)):
+        cfg = dataclasses.replace(VoteConfig(), span_cover=0.5, span_instances_only=False, span_min_views=share)
+
+        def vote_on(o, cfg=cfg):
+            return supervoxel_vote(GROUPS, o, COUNTS, NO_SUPPORT, np.zeros((5, 5)), 5, cfg)
+
+        out = span_revote(GROUPS, occ, COUNTS, NO_SUPPORT, vote_on(occ), vote_on, cfg, view, 5)
+        assert len(out.span_cleared) == n
+    with pytest.raises(SceneError, match="span_min_views"):
+        VoteConfig(span_min_views=1.5)
