@@ -114,13 +114,17 @@ def test_config_is_checked_and_old_configs_load_with_it_off(tmp_path):
         VoteConfig(span_cover=-0.1)
     with pytest.raises(SceneError):
         VoteConfig(span_confirm=0.0)
-    assert SegmentConfig().vote.span_cover == 0.0 and PRESETS["paper"].vote.span_cover == 0.0  # off in both
+    # on by default since session 10 (with its two guards), off in the paper preset
+    v = SegmentConfig().vote
+    assert (v.span_cover, v.span_instances_only, v.span_min_views) == (0.5, True, 0.5)
+    assert PRESETS["paper"].vote.span_cover == 0.0
     data = config_to_json(SegmentConfig())
-    for f in ("span_cover", "span_confirm", "span_occupancy"):
+    for f in ("span_cover", "span_confirm", "span_occupancy", "span_instances_only", "span_min_views"):
         assert f"vote.{f}" in ADDED_AFTER_V1
         del data["vote"][f]
     old = config_from_json(data, tmp_path / "config.json").vote  # a config written before the rule: off
-    assert old == dataclasses.replace(SegmentConfig().vote, span_cover=0.0) == SegmentConfig().vote
+    assert old == dataclasses.replace(SegmentConfig().vote, span_cover=0.0, span_instances_only=False,
+                                      span_min_views=0.0)
 
 
 def test_a_run_with_the_rule_saves_its_cleared_pairs_and_explains_them(tmp_path, capsys):
@@ -134,7 +138,9 @@ def test_a_run_with_the_rule_saves_its_cleared_pairs_and_explains_them(tmp_path,
 
     scene = tiny_scene()
     # a low cover so that the tiny scene's masks span something (it has no under-segmented candidate)
-    seg = segment(scene, with_fields(SegmentConfig(), {"vote.span_cover": 0.05, "vote.span_confirm": 1.0}))
+    # session 9's rule, without the session-10 guards, so that the tiny scene has pairs to explain
+    seg = segment(scene, with_fields(SegmentConfig(), {"vote.span_cover": 0.05, "vote.span_confirm": 1.0,
+                                                       "vote.span_instances_only": False, "vote.span_min_views": 0.0}))
     sc = seg.trace.vote.span_cleared
     assert sc is not None and sc.ndim == 2 and sc.shape[1] == 2
     off = segment(scene, with_fields(SegmentConfig(), {"vote.span_cover": 0.0}))
