@@ -405,7 +405,8 @@ class SupervoxelExplanation:
     min_instance_points: int
     span_cleared: tuple[tuple[int, int], ...] = ()
     """(node, its group) of each mask whose occupancy of this super-voxel the vote ignored: it
-    spans another group's footprint there (``vote.span_cover``, ``segmentation.span``)."""
+    spans another group's footprint there (``vote.span_cover``, ``segmentation.span``), or its group is
+    not an instance and a spanning mask was cleared there (``vote.span_instances_only``)."""
 
     def to_json(self) -> dict:
         return asdict(self)
