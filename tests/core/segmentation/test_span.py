@@ -257,3 +257,27 @@ def test_a_group_with_few_views_does_not_span():
         assert len(out.span_cleared) == n
     with pytest.raises(SceneError, match="span_min_views"):
         VoteConfig(span_min_views=1.5)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(0, 4))
+def test_the_guards_only_remove_pairs(seed, min_views):
+    """Session 10's guards (spannable groups, minimum views) clear a subset of what the rule clears
+    without them, and every pair they keep has a spanned group that may be spanned."""
+    rng = np.random.default_rng(seed)
+    u, k = 12, 20
+    occ = np.where(rng.random((u, k)) < 0.4, rng.random((u, k)), 0.0).astype(np.float32)
+    counts = rng.integers(1, 50, k)
+    support = rng.random(k) < 0.2
+    cuts = np.sort(rng.choice(np.arange(1, u), 3, replace=False))
+    groups = tuple(tuple(sorted(p.tolist())) for p in np.split(rng.permutation(u), cuts) if len(p))
+    eligible = np.ones(len(groups), bool)
+    view = rng.integers(0, 6, u)
+    spannable = rng.random(len(groups)) < 0.6
+    free = spanning_votes(groups, occ, counts, support, eligible, 0.3, 0.5)
+    kept = spanning_votes(groups, occ, counts, support, eligible, 0.3, 0.5, spannable=spannable,
+                          node_view=view, min_views=min_views)
+    assert {tuple(p) for p in kept.cleared.tolist()} <= {tuple(p) for p in free.cleared.tolist()}
+    assert spannable[kept.spanned].all()
+    for node, gi in zip(kept.node.tolist(), kept.group.tolist()):
+        assert len({int(view[j]) for j in groups[gi] if j != node}) >= min_views
