@@ -2,7 +2,7 @@
 
 For each generated scene (RealSense-like depth by default), ``segment`` runs once per config
 variant, one after the other in one process (``bench_table_contact.py``'s pattern); prints AP25 /
-AP50 / AP, instances, the number of (mask, group) spanning pairs and cleared occupancies, and the
+AP50 / AP, instances, the number of cleared (mask, super-voxel) occupancies and of masks with one, and the
 CPU seconds of the rule and of the whole ``segment`` per scene as JSON lines, and for every variant
 after the first the GT objects whose best IoU crosses 0.5 against the first (``lost50`` /
 ``gained50``: indices into the scene's objects), then the means:
@@ -66,7 +66,7 @@ def main() -> None:
             r = dict(scene=spec.name, variant=name, ap25=round(res.ap25, 1), ap50=round(res.ap50, 1),
                      ap=round(res.ap, 1), pred=res.num_pred, gt=res.num_gt,
                      cleared=0 if sc is None else int(len(sc)),
-                     spanning_masks=0 if sc is None else int(len(np.unique(sc[:, 0]))),
+                     masks_cleared=0 if sc is None else int(len(np.unique(sc[:, 0]))),
                      segment_cpu_s=round(cpu, 2), vote_s=round(seg.trace.timing("vote"), 3))
             if first is None:
                 first = best
