@@ -129,6 +129,9 @@ ADDITIONS: tuple[Addition, ...] = (
     Addition("absorb-fragments", "an instance that won < 20 % of its masks' footprint and holds < 10 % of the points of "
              "the instance that won most of it is merged into that instance",
              (("refine.min_won_fraction", 0.2, 0.0),)),
+    Addition("span-masks", "a mask covering >= 50 % of another instance's footprint, unconfirmed there by its own "
+             "group (masks from >= half of the views), does not vote there; only instances take what it leaves",
+             (("vote.span_cover", 0.5, 0.0),)),
     Addition("pixel-stride", "1080p views are sampled every 3rd pixel before voxelisation (none at 640x480)",
              (("pointcloud.pixel_stride", 0, 1),)),
     Addition("surface-estimate", "when the views' depths disagree by >= 1 mm (sensor noise, measured from the data), "
@@ -233,6 +236,8 @@ ADDED_AFTER_V1: dict[str, Any] = {
     "vote.span_cover": 0.0,
     "vote.span_confirm": 0.5,
     "vote.span_occupancy": 0.5,
+    "vote.span_instances_only": False,
+    "vote.span_min_views": 0.0,
     "refine.min_won_fraction": 0.0,
     "refine.weak_echo_ratio": 0.0,
     "refine.contact_height": 0.0,

@@ -405,7 +405,8 @@ class SupervoxelExplanation:
     min_instance_points: int
     span_cleared: tuple[tuple[int, int], ...] = ()
     """(node, its group) of each mask whose occupancy of this super-voxel the vote ignored: it
-    spans another group's footprint there (``vote.span_cover``, ``segmentation.span``)."""
+    spans another group's footprint there (``vote.span_cover``, ``segmentation.span``), or its group is
+    not an instance and a spanning mask was cleared there (``vote.span_instances_only``)."""
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -428,7 +429,8 @@ class SupervoxelExplanation:
                          f"{_inst(gv.instance)}" + ("" if gv.eligible else " (below min_group_size: no vote)"))
         for node, gi in self.span_cleared:
             lines.append(f"  mask node {node} (group {gi}) did not vote here: it spans another group's footprint "
-                         "that its own group's other masks do not cover (vote.span_cover)")
+                         "that its own group's other masks do not cover (vote.span_cover), or its group is not "
+                         "an instance and a spanning mask's vote was cleared here (vote.span_instances_only)")
         if not self.recorded:
             lines.append("the full tally and the reason are not recorded in this run")
         return "\n".join(lines)

@@ -313,7 +313,7 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
             # that a fragment of the mask's own object has joined its group first
             groups = grouping.groups
             vote = span_revote(groups, occupancy, sv.counts, sv.support, vote, lambda occ: revote(groups, occ),
-                               config.vote)
+                               config.vote, nodes.view, len(views))
         # the vote's labels per voxel; ours, off by default: small super-voxels smoothed (session 8),
         # weak echoes unlabelled (issue 13). One function, so that the labels the contact rule
         # changes can be recomputed from a run (``refine.run_labels_before_contact``)

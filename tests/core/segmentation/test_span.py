@@ -59,7 +59,8 @@ def test_no_mask_spans_when_off_when_its_group_confirms_it_or_on_support():
 
 
 def test_the_spanned_object_gets_its_super_voxels_back_and_the_scores_stay():
-    cfg = dataclasses.replace(VoteConfig(), span_cover=0.5)
+    # session 9's rule: any voting group can be spanned, also one that won nothing
+    cfg = dataclasses.replace(VoteConfig(), span_cover=0.5, span_instances_only=False)
 
     def vote_on(o):
         return supervoxel_vote(GROUPS, o, COUNTS, NO_SUPPORT, np.zeros((5, 5)), 5, cfg)
@@ -113,13 +114,17 @@ def test_config_is_checked_and_old_configs_load_with_it_off(tmp_path):
         VoteConfig(span_cover=-0.1)
     with pytest.raises(SceneError):
         VoteConfig(span_confirm=0.0)
-    assert SegmentConfig().vote.span_cover == 0.0 and PRESETS["paper"].vote.span_cover == 0.0  # off in both
+    # on by default since session 10 (with its two guards), off in the paper preset
+    v = SegmentConfig().vote
+    assert (v.span_cover, v.span_instances_only, v.span_min_views) == (0.5, True, 0.5)
+    assert PRESETS["paper"].vote.span_cover == 0.0
     data = config_to_json(SegmentConfig())
-    for f in ("span_cover", "span_confirm", "span_occupancy"):
+    for f in ("span_cover", "span_confirm", "span_occupancy", "span_instances_only", "span_min_views"):
         assert f"vote.{f}" in ADDED_AFTER_V1
         del data["vote"][f]
     old = config_from_json(data, tmp_path / "config.json").vote  # a config written before the rule: off
-    assert old == dataclasses.replace(SegmentConfig().vote, span_cover=0.0) == SegmentConfig().vote
+    assert old == dataclasses.replace(SegmentConfig().vote, span_cover=0.0, span_instances_only=False,
+                                      span_min_views=0.0)
 
 
 def test_a_run_with_the_rule_saves_its_cleared_pairs_and_explains_them(tmp_path, capsys):
@@ -133,7 +138,9 @@ def test_a_run_with_the_rule_saves_its_cleared_pairs_and_explains_them(tmp_path,
 
     scene = tiny_scene()
     # a low cover so that the tiny scene's masks span something (it has no under-segmented candidate)
-    seg = segment(scene, with_fields(SegmentConfig(), {"vote.span_cover": 0.05, "vote.span_confirm": 1.0}))
+    # session 9's rule, without the session-10 guards, so that the tiny scene has pairs to explain
+    seg = segment(scene, with_fields(SegmentConfig(), {"vote.span_cover": 0.05, "vote.span_confirm": 1.0,
+                                                       "vote.span_instances_only": False, "vote.span_min_views": 0.0}))
     sc = seg.trace.vote.span_cleared
     assert sc is not None and sc.ndim == 2 and sc.shape[1] == 2
     off = segment(scene, with_fields(SegmentConfig(), {"vote.span_cover": 0.0}))
@@ -148,3 +155,129 @@ def test_a_run_with_the_rule_saves_its_cleared_pairs_and_explains_them(tmp_path,
     assert int(sc[0, 0]) in [n for n, _ in e.span_cleared]
     explain_command(d, supervoxel=k)
     assert "did not vote here" in capsys.readouterr().out
+
+
+def test_only_an_instance_can_be_spanned_by_default():
+    """Session 10: clearing for a group that won nothing made it a second instance of an object."""
+    cfg = dataclasses.replace(VoteConfig(), span_cover=0.5)
+    assert cfg.span_instances_only
+    weak_b = _occ(b_occ=(0.55, 0.4))
+
+    def vote_on(o, counts=COUNTS):
+        return supervoxel_vote(GROUPS, o, counts, np.zeros(o.shape[1], bool), np.zeros((5, 5)), 5, cfg)
+
+    before = vote_on(weak_b)
+    assert len(before.instance_group) == 1  # B won nothing: not an instance, so not spanned
+    after = span_revote(GROUPS, weak_b, COUNTS, NO_SUPPORT, before, vote_on, cfg)
+    assert after.span_cleared.shape == (0, 2)
+    np.testing.assert_array_equal(after.sv_label, before.sv_label)
+    # the same masks, but B also holds three super-voxels of its own (30 raw points): an instance
+    occ = np.concatenate([weak_b, np.zeros((5, 3), np.float32)], axis=1)
+    occ[3, K:] = 1.0
+    counts = np.full(K + 3, 10)
+    vote3 = lambda o: vote_on(o, counts)  # noqa: E731
+    before = vote3(occ)
+    assert len(before.instance_group) == 2
+    b = int(np.flatnonzero(before.instance_group == 1)[0])
+    assert (before.sv_label[5:K] != b).all()  # A's spanning mask took B's super-voxels 5-7
+    after = span_revote(GROUPS, occ, counts, np.zeros(K + 3, bool), before, vote3, cfg)
+    assert after.span_cleared.tolist() == [[0, 5], [0, 6], [0, 7]]
+    b = int(np.flatnonzero(after.instance_group == 1)[0])
+    assert (after.sv_label[5:] == b).all()
+
+
+def test_spannable_restricts_the_spanned_groups_only():
+    occ = _occ()
+    every = spanning_votes(GROUPS, occ, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5)
+    same = spanning_votes(GROUPS, occ, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5, spannable=np.array([False, True]))
+    none = spanning_votes(GROUPS, occ, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5, spannable=np.array([True, False]))
+    np.testing.assert_array_equal(same.cleared, every.cleared)
+    assert len(every.cleared) and not len(none.cleared) and not len(none.node)
+    with pytest.raises(SceneError, match="spannable"):
+        spanning_votes(GROUPS, occ, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5, spannable=np.ones(3, bool))
+
+
+def test_a_group_that_won_nothing_does_not_take_a_cleared_super_voxel():
+    """Mask 5 (group C) beats B on super-voxel 5 once A's spanning mask is cleared; C won 20 raw
+    points before (no instance), 30 with it: session 9's rule made C a new instance."""
+    occ = np.concatenate([_occ(b_occ=(0.55, 0.4)), np.zeros((5, 5), np.float32)], axis=1)
+    occ[3, K:K + 3] = 1.0  # B's own super-voxels 8-10: B is an instance
+    occ = np.concatenate([occ, np.zeros((1, K + 5), np.float32)])
+    occ[5, 5] = 0.96  # C: A's mask 0 (1.0) > C > B (0.95) on super-voxel 5
+    occ[5, K + 3:] = 1.0
+    groups = GROUPS + ((5,),)
+    counts = np.full(K + 5, 10)
+    no_support = np.zeros(K + 5, bool)
+
+    def run(only: bool):
+        cfg = dataclasses.replace(VoteConfig(), span_cover=0.5, span_instances_only=only)
+
+        def vote_on(o):
+            return supervoxel_vote(groups, o, counts, no_support, np.zeros((6, 6)), 5, cfg)
+
+        before = vote_on(occ)
+        assert sorted(before.instance_group.tolist()) == [0, 1]
+        return span_revote(groups, occ, counts, no_support, before, vote_on, cfg)
+
+    old, new = run(False), run(True)
+    assert sorted(old.instance_group.tolist()) == [0, 1, 2]  # C became an instance
+    assert sorted(new.instance_group.tolist()) == [0, 1]
+    b = int(np.flatnonzero(new.instance_group == 1)[0])
+    assert (new.sv_label[5:K + 3] == b).all()
+    assert [5, 5] in new.span_cleared.tolist() and [5, 5] not in old.span_cleared.tolist()
+    # what the trace records replays the vote (the viewer clears these pairs and votes again)
+    cfg = dataclasses.replace(VoteConfig(), span_cover=0.5)
+    replay = supervoxel_vote(groups, cleared_occupancy(occ, new.span_cleared), counts, no_support,
+                             np.zeros((6, 6)), 5, cfg)
+    np.testing.assert_array_equal(replay.sv_group, new.sv_group)
+
+
+def test_a_group_with_few_views_does_not_span():
+    """Session 10: with ``min_views`` the spanning mask's group needs other masks from that many views."""
+    occ, view = _occ(), np.arange(5)  # group A: masks 0, 1, 2 in views 0, 1, 2
+    base = spanning_votes(GROUPS, occ, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5)
+    two = spanning_votes(GROUPS, occ, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5, node_view=view, min_views=2)
+    three = spanning_votes(GROUPS, occ, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5, node_view=view, min_views=3)
+    np.testing.assert_array_equal(two.cleared, base.cleared)  # mask 0's group: 2 other views
+    assert not len(three.cleared)
+    # two masks of one view (near-identical duplicates) count as one view
+    dup = spanning_votes(GROUPS, occ, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5, node_view=np.array([0, 1, 1, 3, 4]),
+                         min_views=2)
+    assert not len(dup.cleared)
+    with pytest.raises(SceneError, match="node_view"):
+        spanning_votes(GROUPS, occ, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5, min_views=2)
+    # span_revote: ceil(share x views); 0.4 x 5 views = 2 other views needed, 0.5 x 5 -> 3
+    for share, n in ((0.4, 3), (0.5, 0)):
+        cfg = dataclasses.replace(VoteConfig(), span_cover=0.5, span_instances_only=False, span_min_views=share)
+
+        def vote_on(o, cfg=cfg):
+            return supervoxel_vote(GROUPS, o, COUNTS, NO_SUPPORT, np.zeros((5, 5)), 5, cfg)
+
+        out = span_revote(GROUPS, occ, COUNTS, NO_SUPPORT, vote_on(occ), vote_on, cfg, view, 5)
+        assert len(out.span_cleared) == n
+    with pytest.raises(SceneError, match="span_min_views"):
+        VoteConfig(span_min_views=1.5)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(0, 4))
+def test_the_guards_only_remove_pairs(seed, min_views):
+    """Session 10's guards (spannable groups, minimum views) clear a subset of what the rule clears
+    without them, and every pair they keep has a spanned group that may be spanned."""
+    rng = np.random.default_rng(seed)
+    u, k = 12, 20
+    occ = np.where(rng.random((u, k)) < 0.4, rng.random((u, k)), 0.0).astype(np.float32)
+    counts = rng.integers(1, 50, k)
+    support = rng.random(k) < 0.2
+    cuts = np.sort(rng.choice(np.arange(1, u), 3, replace=False))
+    groups = tuple(tuple(sorted(p.tolist())) for p in np.split(rng.permutation(u), cuts) if len(p))
+    eligible = np.ones(len(groups), bool)
+    view = rng.integers(0, 6, u)
+    spannable = rng.random(len(groups)) < 0.6
+    free = spanning_votes(groups, occ, counts, support, eligible, 0.3, 0.5)
+    kept = spanning_votes(groups, occ, counts, support, eligible, 0.3, 0.5, spannable=spannable,
+                          node_view=view, min_views=min_views)
+    assert {tuple(p) for p in kept.cleared.tolist()} <= {tuple(p) for p in free.cleared.tolist()}
+    assert spannable[kept.spanned].all()
+    for node, gi in zip(kept.node.tolist(), kept.group.tolist()):
+        assert len({int(view[j]) for j in groups[gi] if j != node}) >= min_views
