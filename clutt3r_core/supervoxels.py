@@ -123,7 +123,11 @@ class SuperVoxelConfig:
     side masks split into two instances). Measured at 0.5 (docs/benchmark/strict-iou.md, session
     10; RealSense-like depth, one process): tuning seeds 2-3 mean AP 53.50 -> 53.88 (AP25 / AP50
     equal), check seeds 0-1 identical, fresh hard 14-17 43.4 -> 45.2 (AP50 85.4 -> 88.7), hard
-    10-13 50.4 -> 51.0; clean depth and the real samples' leaf-pair F1 unchanged."""
+    10-13 50.4 -> 51.0; clean depth and the real samples' leaf-pair F1 unchanged; sample_seq1: one
+    super-voxel of 3 points un-marked and labelled, which moves the seq1 update's fingerprints
+    (4b8c0a9c76f2 / e9886116a89c -> e9c0c297afff / 43dfa2ea23ab: instance 2's frame-8 pose 13 mm /
+    1.4 deg, statuses equal). The lead's held-out seeds 6-9 and 18-21 (24 scenes): easy AP 59.3 ->
+    61.7, hard AP50 83.5 -> 86.0, intermediate equal, no scene lower."""
 
     max_object_extent: float = 0.3
     """A super-voxel whose bounding box (in the plane frame) has a side this long,
