@@ -105,6 +105,10 @@ def test_a_group_unlike_its_neighbour_is_not_absorbed():
                                 RefineConfig(0.2, 0.1, absorb_min_semantic=0.9))[0].merges) == 1
     with pytest.raises(SceneError):
         RefineConfig(absorb_min_semantic=-0.1)
+    from clutt3r_core.config import ADDED_AFTER_V1, PRESETS
+
+    # off by default and for a stored config written before the field
+    assert PRESETS["default"].refine.absorb_min_semantic == 0.0 == ADDED_AFTER_V1["refine.absorb_min_semantic"]
 
 
 @settings(max_examples=25, deadline=None)
