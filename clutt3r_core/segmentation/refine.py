@@ -17,7 +17,7 @@ merge) and the vote is run again; one merge at a time, the least-won group first
 group is below the fraction. A separate object touching another wins its own footprint (its
 masks cover its own super-voxels more than the neighbour's masks do), so it is not absorbed.
 
-About 530 lines on purpose: ``RefineConfig`` is 145 of them, each field with the measurements that
+About 560 lines on purpose: ``RefineConfig`` is 160 of them, each field with the measurements that
 set it, and the after-vote rules here (absorption, weak echoes, contact) share that config.
 """
 
