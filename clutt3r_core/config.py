@@ -239,6 +239,7 @@ ADDED_AFTER_V1: dict[str, Any] = {
     "vote.span_instances_only": False,
     "vote.span_min_views": 0.0,
     "refine.min_won_fraction": 0.0,
+    "refine.absorb_min_semantic": 0.0,
     "refine.weak_echo_ratio": 0.0,
     "refine.contact_height": 0.0,
     "instance_surface.radius": 0.0,

@@ -90,6 +90,39 @@ def test_absorption_only_merges_and_keeps_every_labelled_supervoxel(on_a, sliver
     assert list(v2.scores) == sorted(v2.scores, reverse=True)
 
 
+def test_a_group_unlike_its_neighbour_is_not_absorbed():
+    """``absorb_min_semantic`` (session 10): the fragment's masks and A's have S_semantic 0.3."""
+    grouping, vote, occ, s, revote = scenario()
+    g_on, _ = absorb_fragments(grouping, vote, occ, COUNTS, s, s, revote, RefineConfig(0.2, 0.1, absorb_min_semantic=0.25))
+    assert len(g_on.merges) == 1 and g_on.merges[0].semantic == pytest.approx(0.3)
+    g2, v2 = absorb_fragments(grouping, vote, occ, COUNTS, s, s, revote, RefineConfig(0.2, 0.1, absorb_min_semantic=0.35))
+    assert g2 is grouping and v2 is vote
+    # no semantic edge between the groups: no evidence against the merge, absorbed as before
+    sem = s.copy()
+    sem[np.ix_([6, 7], [0, 1, 2])] = np.nan
+    sem[np.ix_([0, 1, 2], [6, 7])] = np.nan
+    assert len(absorb_fragments(grouping, vote, occ, COUNTS, s, sem, revote,
+                                RefineConfig(0.2, 0.1, absorb_min_semantic=0.9))[0].merges) == 1
+    with pytest.raises(SceneError):
+        RefineConfig(absorb_min_semantic=-0.1)
+    from clutt3r_core.config import ADDED_AFTER_V1, PRESETS
+
+    # off by default and for a stored config written before the field
+    assert PRESETS["default"].refine.absorb_min_semantic == 0.0 == ADDED_AFTER_V1["refine.absorb_min_semantic"]
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.floats(0.0, 1.0), st.floats(0.05, 1.0), st.lists(st.floats(-1.0, 1.0), min_size=64, max_size=64),
+       st.floats(0.0, 1.0))
+def test_every_absorption_clears_the_semantic_floor(on_a, sliver, sem, floor):
+    grouping, vote, occ, s, revote = scenario(on_a, sliver)
+    s_sem = np.asarray(sem, np.float32).reshape(8, 8)
+    s_sem = np.where(np.isnan(s), np.nan, (s_sem + s_sem.T) / 2)
+    g2, _ = absorb_fragments(grouping, vote, occ, COUNTS, s, s_sem, revote, RefineConfig(0.5, 1.0, absorb_min_semantic=floor))
+    # (every cross pair of the scenario has an edge, so each merge records its mean)
+    assert all(m.semantic >= floor - 1e-6 for m in g2.merges if m.stage == ABSORB_STAGE)
+
+
 def test_pipeline_absorbs_fragments_and_the_trace_replays_them(tmp_path):
     from clutt3r_core.pipeline import PRESETS, instance_tree_json, segment
     from tests.core.test_pipeline import small_scene
