@@ -225,11 +225,15 @@ def supervoxel_vote(
     s_spatial: np.ndarray,
     n_views: int,
     cfg: VoteConfig = VoteConfig(),
+    view: np.ndarray | None = None,
 ) -> VoteResult:
     """Vote super-voxels to groups.
 
     groups: node-index tuples; occupancy: (U, K) o_i(k) of every node; sv_counts: (K,)
     raw points per super-voxel; support: (K,) bool; s_spatial: (U, U) leaf similarities.
+    view: (U,) view of every node, or None; given (the pipeline, with ``grouping.reunion_tau``
+    on), a group's confidence counts its views, not its masks (ours: a reunited group holds two
+    masks of a view, and counting both ranked a split object above whole ones; session 10).
     """
     k = occupancy.shape[1]
     g = len(groups)
@@ -269,7 +273,8 @@ def supervoxel_vote(
         if len(m) > 1:
             sub = s[np.ix_(m, m)]
             internal = float(sub[np.triu_indices(len(m), 1)].mean())
-        conf[i] = len(m) / max(n_views, 1) + 1e-3 * internal
+        n = len(m) if view is None else len(set(np.asarray(view)[m].tolist()))
+        conf[i] = n / max(n_views, 1) + 1e-3 * internal
     points = _won_points(chosen, sv_counts, g)
     keep = eligible & (points >= cfg.min_instance_points)
     if cfg.revote_dropped and g:
