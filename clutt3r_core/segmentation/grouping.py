@@ -52,6 +52,7 @@ __all__ = [
     "substitute_residuals",
     "stranded_parents",
     "run_grouping",
+    "reunion_weights",
     "same_view_containment",
     "StageStop",
     "BlockedPairs",
@@ -612,6 +613,20 @@ def same_view_containment(view: np.ndarray, overlaps) -> np.ndarray:
         np.fill_diagonal(c, 0.0)
         out[np.ix_(idx, idx)] = c
     return out
+
+
+def reunion_weights(merges: "tuple[MergeStep, ...] | list[MergeStep]", view: np.ndarray) -> np.ndarray:
+    """(U,) float64 confidence weight of every node: 0 for the masks of a reunion's second group
+    (``MergeStep.b``) in views its first group already held, 1 otherwise, so that a reunited
+    group counts each view once for them (ours, ``supervoxel_vote``'s ``mask_weight``)."""
+    view = np.asarray(view)
+    w = np.ones(len(view), np.float64)
+    for m in merges:
+        if m.stage == "reunion":
+            held = set(view[list(m.a)].tolist())
+            b = np.asarray(m.b, np.int64)
+            w[b[np.isin(view[b], list(held))]] = 0.0
+    return w
 
 
 def reunite_split_groups(

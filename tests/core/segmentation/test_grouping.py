@@ -11,6 +11,7 @@ from clutt3r_core.segmentation.grouping import (
     GroupingConfig,
     NodeTable,
     SimilarityGraph,
+    reunion_weights,
     run_grouping,
     same_view_containment,
     semantic_similarity,
@@ -247,6 +248,12 @@ def test_reunion_containment_gate_keeps_a_mask_that_holds_the_other_apart():
     # the gate off (1) or no overlaps: the reunion as before
     assert len(run_grouping(nodes, sim, V, GroupingConfig(reunion_tau=0.25), overlaps=held).groups) == 1
     assert len(run_grouping(nodes, sim, V, gate).groups) == 1
+    # the reunited group counts each view once in its confidence: the two right halves (views 0
+    # and 1, which the left halves' group already held) weigh 0, every other mask 1
+    res = run_grouping(nodes, sim, V, gate, overlaps=apart)
+    w = reunion_weights(res.merges, nodes.view)
+    assert w.sum() == len(set(nodes.view.tolist())) == 4
+    assert (reunion_weights(run_grouping(nodes, sim, V, GroupingConfig()).merges, nodes.view) == 1).all()
 
 
 @settings(max_examples=30, deadline=None)
