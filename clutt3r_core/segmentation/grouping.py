@@ -93,7 +93,7 @@ class GroupingConfig:
     mustard-and-banana leaf copy holding the mustard's mask (``reunion_max_contain`` keeps it out),
     and reunited groups rank by views (``reunion_weights``). With the gate at 0.5 and tau 0.25:
     tuning seeds 2-3 AP 54.18 -> 55.06, check seeds 0-1 identical (56.34), fresh seeds 10-17
-    (intermediate + hard) 52.25 -> 54.11, AP50 92.99 -> 94.85; clean depth and both real samples
+    (intermediate + hard) 52.25 -> 54.11, AP50 92.49 -> 94.85; clean depth and both real samples
     identical. Off: the check seeds did not rise (docs/benchmark/strict-iou.md, "Session 10: splits")."""
     reunion_max_contain: float = 1.0
     """Ours (session 10), read only with ``reunion_tau`` > 0; 1 = no gate: two groups are reunited
