@@ -3,7 +3,7 @@
 Per scene and variant, one JSON line: AP25 / AP50 / AP, predictions, reunion merges, the CPU of
 ``segment`` (``time.process_time``) and of its grouping stage; then the means. Variants: ``def``
 (the default), ``r25c`` (tau 0.25, containment gate 0.5), ``r12c`` (tau 0.12, gate 0.5),
-``r25`` (tau 0.25, no gate). docs/benchmark/strict-iou.md, "Session 10: splits":
+``r25`` (tau 0.25, no gate); ``r12cs`` / ``r25cs`` add ``reunion_min_semantic`` 0.7. docs/benchmark/strict-iou.md, "Session 10: splits":
 
     .venv/bin/python benchmarks/bench_reunion.py --seeds 2 3 --difficulties easy intermediate hard \
         --cache /tmp/bench_cache --variants def r25c r12c
@@ -22,7 +22,9 @@ from clutt3r_core.pipeline import segment
 
 V = {"def": {}, "r25": {"grouping.reunion_tau": 0.25},
      "r25c": {"grouping.reunion_tau": 0.25, "grouping.reunion_max_contain": 0.5},
-     "r12c": {"grouping.reunion_tau": 0.12, "grouping.reunion_max_contain": 0.5}}
+     "r12c": {"grouping.reunion_tau": 0.12, "grouping.reunion_max_contain": 0.5},
+     "r12cs": {"grouping.reunion_tau": 0.12, "grouping.reunion_max_contain": 0.5, "grouping.reunion_min_semantic": 0.7},
+     "r25cs": {"grouping.reunion_tau": 0.25, "grouping.reunion_max_contain": 0.5, "grouping.reunion_min_semantic": 0.7}}
 ap = argparse.ArgumentParser()
 ap.add_argument("--seeds", type=int, nargs="+"); ap.add_argument("--difficulties", nargs="+")
 ap.add_argument("--cache"); ap.add_argument("--variants", nargs="+", default=list(V))

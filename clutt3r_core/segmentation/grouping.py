@@ -103,6 +103,10 @@ class GroupingConfig:
     pair that made ``reunion_tau`` fail on sample_seq4 is a mustard-and-banana leaf copy holding
     the mustard's mask of the same view (containment 1.0). Needs the views' pixel overlaps
     (``run_grouping``'s ``overlaps``); without them the gate blocks nothing."""
+    reunion_min_semantic: float = -1.0
+    """Ours (session 10), read only with ``reunion_tau`` > 0; -1 = no gate: the reunion also needs
+    the pair's mean S_semantic (eq. 3, unitless) >= this (splits measured 0.73-0.96, the touching
+    pair with the highest S_spatial 0.60; docs/benchmark/strict-iou.md, "Session 10: splits")."""
     semantic_needs_overlap: bool = True
     """Ours: stage 2 only merges groups whose mean S_spatial is above 0, i.e. whose masks share
     at least one super-voxel in 3D. Sec. III-B.2 uses S_spatial "to resolve ambiguities among
@@ -566,7 +570,8 @@ def run_grouping(nodes: NodeTable, sim: SimilarityGraph, n_views: int, cfg: Grou
         contain = (same_view_containment(nodes.view, overlaps)
                    if overlaps is not None and cfg.reunion_max_contain < 1 else None)
         groups, more = reunite_split_groups(groups, sim, nodes.view, n_views, cfg.reunion_tau,
-                                             cfg.substitution_rounds + 1, contain, cfg.reunion_max_contain)
+                                             cfg.substitution_rounds + 1, contain, cfg.reunion_max_contain,
+                                             cfg.reunion_min_semantic)
         events += [("merge", len(merges) + k) for k in range(len(more))]
         merges += more
     return GroupingResult(
@@ -636,7 +641,7 @@ def reunion_weights(merges: "tuple[MergeStep, ...] | list[MergeStep]", view: np.
 
 def reunite_split_groups(
     groups: list[list[int]], sim: SimilarityGraph, view: np.ndarray, n_views: int, tau: float, round_: int,
-    contain: np.ndarray | None = None, max_contain: float = 1.0,
+    contain: np.ndarray | None = None, max_contain: float = 1.0, min_semantic: float = -1.0,
 ) -> tuple[list[list[int]], list[MergeStep]]:
     """Merge groups of one object that the one-mask-per-view rule kept apart (ours).
 
@@ -644,13 +649,16 @@ def reunite_split_groups(
     similarity is the mean S_spatial over their cross-view pairs (same-view pairs have no
     edge). Greedy, best pair first, as stage 1. ``contain`` ((U, U), ``same_view_containment``):
     a pair whose masks of a shared view have containment >= ``max_contain`` is not a candidate
-    (one mask holds the other: a mask spanning the object and a neighbour, not a second part).
+    (one mask holds the other: a mask spanning the object and a neighbour, not a second part);
+    nor is one whose mean S_semantic over cross-view pairs is under ``min_semantic``.
     """
     state = _Groups(groups, sim.s_spatial, sim.s_semantic, view, n_views)
     steps: list[MergeStep] = []
     while len(state.members) > 1:
         big = state.size >= 2
         ok = np.triu(state.shared_views() & big[:, None] & big[None, :] & (state.count > 0), 1)
+        if min_semantic > -1:
+            ok &= state.mean(STAGE_SEMANTIC, defined_only=True) >= min_semantic
         if contain is not None:
             for i, j in zip(*np.nonzero(ok)):
                 if contain[np.ix_(state.members[i], state.members[j])].max() >= max_contain:

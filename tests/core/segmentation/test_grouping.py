@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -254,6 +256,10 @@ def test_reunion_containment_gate_keeps_a_mask_that_holds_the_other_apart():
     w = reunion_weights(res.merges, nodes.view)
     assert w.sum() == len(set(nodes.view.tolist())) == 4
     assert (reunion_weights(run_grouping(nodes, sim, V, GroupingConfig()).merges, nodes.view) == 1).all()
+    # the semantic gate: a pair whose mean S_semantic is under it is not reunited
+    sem = res.merges[-1].semantic
+    assert len(run_grouping(nodes, sim, V, replace(gate, reunion_min_semantic=sem - 1e-3), overlaps=apart).groups) == 1
+    assert len(run_grouping(nodes, sim, V, replace(gate, reunion_min_semantic=sem + 1e-3), overlaps=apart).groups) == 2
 
 
 @settings(max_examples=30, deadline=None)
