@@ -16,7 +16,7 @@ Determinism: nodes are indexed in canonical order (frame, mask id), groups are
 kept sorted by their first member, and ties on the best score go to the first pair
 in that order, so the result does not depend on the order masks or views arrive in.
 
-It stays one module (about 540 lines) on purpose: both stages, the rewiring, the
+It stays one module (about 680 lines) on purpose: both stages, the rewiring, the
 substitution rounds and the decision records share the group bookkeeping, and
 Algorithm 1 reads best top to bottom in one place.
 """
