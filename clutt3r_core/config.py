@@ -261,6 +261,8 @@ ADDED_AFTER_V1: dict[str, Any] = {
     "pointcloud.surface_rim_reach": 0.0,
     "unvoted.min_points": 0,
     "supervoxels.planar_mask_views": 0.0,
+    "grouping.reunion_max_contain": 1.0,
+    "grouping.reunion_min_semantic": -1.0,
 }
 """Fields added after trace version 1, each with the value that reproduces the code that wrote
 such a trace (issue 13: the first two only made existing rules switchable; the others are

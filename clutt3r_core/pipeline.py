@@ -34,6 +34,7 @@ from clutt3r_core.segmentation.grouping import (
     NodeTable,
     SimilarityGraph,
     run_grouping,
+    reunion_weights,
     semantic_similarity,
     spatial_similarity,
 )
@@ -299,10 +300,13 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
     tick("grouping + vote")
 
     with timer("grouping"):
-        grouping = run_grouping(nodes, sim, len(views), config.grouping, duplicates=dups.pairs)
+        grouping = run_grouping(nodes, sim, len(views), config.grouping, duplicates=dups.pairs,
+                                overlaps=[o for _, o in built])
     with timer("vote"):
         def revote(groups, occ=occupancy):
-            return supervoxel_vote(groups, occ, sv.counts, sv.support, s_spat, len(views), config.vote)
+            return supervoxel_vote(groups, occ, sv.counts, sv.support, s_spat, len(views), config.vote,
+                                   reunion_weights(grouping.merges, nodes.view) if config.grouping.reunion_tau > 0
+                                   else None)
 
         vote = revote(grouping.groups)
         # ours (issue 13): fragment groups join the instance that won their masks' footprint

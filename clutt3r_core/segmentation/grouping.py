@@ -16,7 +16,7 @@ Determinism: nodes are indexed in canonical order (frame, mask id), groups are
 kept sorted by their first member, and ties on the best score go to the first pair
 in that order, so the result does not depend on the order masks or views arrive in.
 
-It stays one module (about 540 lines) on purpose: both stages, the rewiring, the
+It stays one module (about 680 lines) on purpose: both stages, the rewiring, the
 substitution rounds and the decision records share the group bookkeeping, and
 Algorithm 1 reads best top to bottom in one place.
 """
@@ -52,6 +52,8 @@ __all__ = [
     "substitute_residuals",
     "stranded_parents",
     "run_grouping",
+    "reunion_weights",
+    "same_view_containment",
     "StageStop",
     "BlockedPairs",
     "ResidualNotes",
@@ -87,7 +89,26 @@ class GroupingConfig:
     mean S_spatial over cross-view pairs is >= this. Measured at 0.25: generated held-out seeds
     20-25 gain 1.6-3.4 AP (harsh easy loses 1.1), but on real sample_seq4 it joins the mustard
     bottle with a touching object (leaf-pair F1 0.881 -> 0.872, precision 0.905 -> 0.851), so it
-    stays off: real depth noise lets touching objects overlap in 3D."""
+    stays off: real depth noise lets touching objects overlap in 3D. Session 10: that pair is a
+    mustard-and-banana leaf copy holding the mustard's mask (``reunion_max_contain`` keeps it out),
+    and reunited groups rank by views (``reunion_weights``). With the gate at 0.5 and tau 0.25:
+    tuning seeds 2-3 AP 54.18 -> 55.06, check seeds 0-1 identical (56.34), fresh seeds 10-17
+    (intermediate + hard) 52.25 -> 54.11, AP50 92.49 -> 94.85; clean depth and both real samples
+    identical. Off: the check seeds did not rise (docs/benchmark/strict-iou.md, "Session 10: splits")."""
+    reunion_max_contain: float = 1.0
+    """Ours (session 10), read only with ``reunion_tau`` > 0; 1 = no gate: two groups are reunited
+    only when, in every view they share, their two masks' pixel intersection over the smaller
+    mask's area (unitless) is under this. The parts of one split object are side by side in a
+    view (measured on fresh seeds: see docs/benchmark/strict-iou.md, "Session 10: splits"); the
+    pair that made ``reunion_tau`` fail on sample_seq4 is a mustard-and-banana leaf copy holding
+    the mustard's mask of the same view (containment 1.0). Needs the views' pixel overlaps
+    (``run_grouping``'s ``overlaps``); without them the gate blocks nothing."""
+    reunion_min_semantic: float = -1.0
+    """Ours (session 10), read only with ``reunion_tau`` > 0; -1 = no gate: the reunion also needs
+    the pair's mean S_semantic (eq. 3, unitless) >= this (splits measured 0.73-0.96, the touching
+    pair with the highest S_spatial 0.60; docs/benchmark/strict-iou.md, "Session 10: splits").
+    With tau 0.12 and containment 0.5: tuning AP 54.18 -> 55.01, check identical, fresh seeds
+    10-17 52.25 -> 55.07, real samples identical; off like the reunion."""
     semantic_needs_overlap: bool = True
     """Ours: stage 2 only merges groups whose mean S_spatial is above 0, i.e. whose masks share
     at least one super-voxel in 3D. Sec. III-B.2 uses S_spatial "to resolve ambiguities among
@@ -503,12 +524,15 @@ def _stands_in(leaf: int, residual: set[int], nodes: NodeTable) -> bool:
 
 
 def run_grouping(nodes: NodeTable, sim: SimilarityGraph, n_views: int, cfg: GroupingConfig,
-                 duplicates: "tuple[DuplicatePair, ...]" = ()) -> GroupingResult:
+                 duplicates: "tuple[DuplicatePair, ...]" = (),
+                 overlaps: "list[np.ndarray] | tuple[np.ndarray, ...] | None" = None) -> GroupingResult:
     """Algorithm 1 plus substitution and regrouping. Background nodes never take part.
 
     ``duplicates`` (``Duplicates.pairs`` of ``segmentation.duplicates.duplicate_masks``, ours): pairs of leaves of one
     view that are the same candidate; each connected set starts as one group (recorded as
     ``"duplicate"`` merges before stage 1). Ignored when ``cfg.duplicate_iou`` is 0.
+    ``overlaps``: per view, the (M_v, M_v) pixel intersection counts of its nodes in node order
+    (diagonal = areas; ``trees.build_tree_overlaps``); read only by the reunion's containment gate.
     """
     start = [[int(i)] for i in np.flatnonzero(nodes.is_leaf & ~nodes.background)]
     first: list[MergeStep] = []
@@ -545,8 +569,11 @@ def run_grouping(nodes: NodeTable, sim: SimilarityGraph, n_views: int, cfg: Grou
             events += [("merge", len(merges) + k) for k in range(len(more))]
             merges += more
     if cfg.reunion_tau > 0:
+        contain = (same_view_containment(nodes.view, overlaps)
+                   if overlaps is not None and cfg.reunion_max_contain < 1 else None)
         groups, more = reunite_split_groups(groups, sim, nodes.view, n_views, cfg.reunion_tau,
-                                             cfg.substitution_rounds + 1)
+                                             cfg.substitution_rounds + 1, contain, cfg.reunion_max_contain,
+                                             cfg.reunion_min_semantic)
         events += [("merge", len(merges) + k) for k in range(len(more))]
         merges += more
     return GroupingResult(
@@ -584,20 +611,60 @@ def _join_duplicates(start: list[list[int]], pairs, nodes: NodeTable) -> tuple[l
     return groups, steps
 
 
+def same_view_containment(view: np.ndarray, overlaps) -> np.ndarray:
+    """(U, U) float32: for two nodes of one view, their pixel intersection over the smaller
+    mask's area (0 for nodes of different views, and on the diagonal)."""
+    view = np.asarray(view)
+    out = np.zeros((len(view), len(view)), np.float32)
+    for v, inter in enumerate(overlaps):
+        idx = np.flatnonzero(view == v)
+        if inter.shape != (len(idx), len(idx)):
+            raise SceneError(f"view {v}: overlaps of shape {inter.shape} for {len(idx)} nodes")
+        area = np.diag(inter).astype(np.float64)
+        c = inter / np.maximum(np.minimum(area[:, None], area[None, :]), 1.0)
+        np.fill_diagonal(c, 0.0)
+        out[np.ix_(idx, idx)] = c
+    return out
+
+
+def reunion_weights(merges: "tuple[MergeStep, ...] | list[MergeStep]", view: np.ndarray) -> np.ndarray:
+    """(U,) float64 confidence weight of every node: 0 for the masks of a reunion's second group
+    (``MergeStep.b``) in views its first group already held, 1 otherwise, so that a reunited
+    group counts each view once for them (ours, ``supervoxel_vote``'s ``mask_weight``)."""
+    view = np.asarray(view)
+    w = np.ones(len(view), np.float64)
+    for m in merges:
+        if m.stage == "reunion":
+            held = set(view[list(m.a)].tolist())
+            b = np.asarray(m.b, np.int64)
+            w[b[np.isin(view[b], list(held))]] = 0.0
+    return w
+
+
 def reunite_split_groups(
-    groups: list[list[int]], sim: SimilarityGraph, view: np.ndarray, n_views: int, tau: float, round_: int
+    groups: list[list[int]], sim: SimilarityGraph, view: np.ndarray, n_views: int, tau: float, round_: int,
+    contain: np.ndarray | None = None, max_contain: float = 1.0, min_semantic: float = -1.0,
 ) -> tuple[list[list[int]], list[MergeStep]]:
     """Merge groups of one object that the one-mask-per-view rule kept apart (ours).
 
     Only groups of two or more masks that share at least one view are candidates; their
     similarity is the mean S_spatial over their cross-view pairs (same-view pairs have no
-    edge). Greedy, best pair first, as stage 1.
+    edge). Greedy, best pair first, as stage 1. ``contain`` ((U, U), ``same_view_containment``):
+    a pair whose masks of a shared view have containment >= ``max_contain`` is not a candidate
+    (one mask holds the other: a mask spanning the object and a neighbour, not a second part);
+    nor is one whose mean S_semantic over cross-view pairs is under ``min_semantic``.
     """
     state = _Groups(groups, sim.s_spatial, sim.s_semantic, view, n_views)
     steps: list[MergeStep] = []
     while len(state.members) > 1:
         big = state.size >= 2
         ok = np.triu(state.shared_views() & big[:, None] & big[None, :] & (state.count > 0), 1)
+        if min_semantic > -1:
+            ok &= state.mean(STAGE_SEMANTIC, defined_only=True) >= min_semantic
+        if contain is not None:
+            for i, j in zip(*np.nonzero(ok)):
+                if contain[np.ix_(state.members[i], state.members[j])].max() >= max_contain:
+                    ok[i, j] = False
         mean_sp = state.mean(STAGE_SPATIAL, defined_only=True)
         score = np.where(ok, mean_sp, -np.inf)
         flat = int(np.argmax(score))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -11,7 +13,9 @@ from clutt3r_core.segmentation.grouping import (
     GroupingConfig,
     NodeTable,
     SimilarityGraph,
+    reunion_weights,
     run_grouping,
+    same_view_containment,
     semantic_similarity,
     spatial_similarity,
 )
@@ -220,6 +224,56 @@ def test_reunion_joins_an_object_split_into_parts_in_two_views_only_when_enabled
     spec2 = [(f, m, None, occ(*(X if m == 1 else Y))) for f in range(3) for m in (1, 2)]
     nodes2, sim2, _, _, V2 = build(spec2)
     assert len(run_grouping(nodes2, sim2, V2, GroupingConfig(reunion_tau=0.25)).groups) == 2
+
+
+
+def test_reunion_containment_gate_keeps_a_mask_that_holds_the_other_apart():
+    # the reunion case above; per view, pixel overlaps of its two masks (node order, diagonal =
+    # areas). Side by side (the parts of one object) the gate lets the reunion through; where a
+    # mask of view 0 holds the other one (a mask spanning the object and a neighbour) it does not
+    left, right = (4, 5, 6, 7), (8, 9, 10, 11)
+    spec = [
+        (0, 1, None, occ(*left)),
+        (0, 2, None, occ(*right)),
+        (1, 1, None, occ(*left)),
+        (1, 2, None, occ(*right)),
+        (2, 1, None, occ(*range(4, 12))),
+        (3, 1, None, occ(*range(4, 12))),
+    ]
+    nodes, sim, O, idx, V = build(spec)
+    apart = [np.array([[100, 0], [0, 80]]), np.array([[90, 3], [3, 70]]), np.array([[200]]), np.array([[210]])]
+    held = [np.array([[100, 100], [100, 300]]), apart[1], apart[2], apart[3]]
+    gate = GroupingConfig(reunion_tau=0.25, reunion_max_contain=0.5)
+    assert len(run_grouping(nodes, sim, V, gate, overlaps=apart).groups) == 1
+    kept = run_grouping(nodes, sim, V, gate, overlaps=held)
+    assert sorted(len(g) for g in kept.groups) == [2, 4] and all(m.stage != "reunion" for m in kept.merges)
+    # the gate off (1) or no overlaps: the reunion as before
+    assert len(run_grouping(nodes, sim, V, GroupingConfig(reunion_tau=0.25), overlaps=held).groups) == 1
+    assert len(run_grouping(nodes, sim, V, gate).groups) == 1
+    # the reunited group counts each view once in its confidence: the two right halves (views 0
+    # and 1, which the left halves' group already held) weigh 0, every other mask 1
+    res = run_grouping(nodes, sim, V, gate, overlaps=apart)
+    w = reunion_weights(res.merges, nodes.view)
+    assert w.sum() == len(set(nodes.view.tolist())) == 4
+    assert (reunion_weights(run_grouping(nodes, sim, V, GroupingConfig()).merges, nodes.view) == 1).all()
+    # the semantic gate: a pair whose mean S_semantic is under it is not reunited
+    sem = res.merges[-1].semantic
+    assert len(run_grouping(nodes, sim, V, replace(gate, reunion_min_semantic=sem - 1e-3), overlaps=apart).groups) == 1
+    assert len(run_grouping(nodes, sim, V, replace(gate, reunion_min_semantic=sem + 1e-3), overlaps=apart).groups) == 2
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.integers(1, 4), min_size=1, max_size=4), st.integers(0, 2**31 - 1))
+def test_same_view_containment_is_symmetric_bounded_and_within_views(sizes, seed):
+    rng = np.random.default_rng(seed)
+    view = np.concatenate([np.full(n, v) for v, n in enumerate(sizes)])
+    overlaps = []
+    for n in sizes:  # overlaps of random pixel masks: a true intersection matrix
+        bits = rng.random((n, 50)) < 0.4
+        overlaps.append(bits.astype(np.int64) @ bits.T.astype(np.int64))
+    c = same_view_containment(view, overlaps)
+    assert np.allclose(c, c.T) and (c >= 0).all() and (c <= 1 + 1e-6).all()
+    assert (c[view[:, None] != view[None, :]] == 0).all() and (np.diag(c) == 0).all()
 
 
 def test_empty_input():
