@@ -127,6 +127,13 @@ class VoteConfig:
     4 masks (8 views) joined two groups of ONE object (a whole-object mask over a fragment group);
     126 of the 129 others joined two objects (docs/benchmark/strict-iou.md, "Session 10")."""
 
+    span_confirm_apart: bool = False
+    """Ours (session 10, off; only read when ``span_cover`` > 0): ``span_confirm`` counts only the
+    group's masks that do not cover ``span_cover`` of the footprint themselves, so that two views'
+    masks that both span a neighbour do not confirm each other (fresh hard_0014: a tuna can's footprint
+    covered by 3 masks of its neighbour's group, confirm 0.97-1.00 from each other, the group's 7 other
+    masks silent; docs/benchmark/strict-iou.md, "Session 10: spanning masks that confirm each other")."""
+
     def __post_init__(self) -> None:
         if self.smooth_max_size < 0 or self.smooth_k < 1 or not 1 <= self.smooth_min_agree <= self.smooth_k:
             raise SceneError("VoteConfig needs smooth_max_size >= 0, smooth_k >= 1 and 1 <= smooth_min_agree <= "
