@@ -95,7 +95,7 @@ def spanning_votes(
     spannable: np.ndarray | None = None,
     node_view: np.ndarray | None = None,
     min_views: int = 0,
-    confirm_apart: bool = False,
+    confirm_apart: float = 0.0,
 ) -> SpanningVotes:
     """Masks of each group that span another group's footprint (module docstring).
 
@@ -108,8 +108,9 @@ def spanning_votes(
     instances of the vote before); None = every eligible group.
     node_view, min_views: (U,) view of each node; a mask spans only when the other masks of its group
     come from at least ``min_views`` distinct views (``VoteConfig.span_min_views``; 0 = no minimum).
-    confirm_apart: only masks of the group that do not themselves cover ``min_cover`` of the footprint
-    confirm it (``VoteConfig.span_confirm_apart``): two spanning masks do not confirm each other.
+    confirm_apart: when the masks of a group that cover ``min_cover`` of a footprint are less than this
+    share of the group's masks, only its other masks confirm there (``VoteConfig.span_confirm_apart``;
+    0 = off): a few views' masks that all span a neighbour do not confirm each other.
     """
     occ = np.asarray(occupancy, np.float32)
     u, k = occ.shape
@@ -146,10 +147,13 @@ def spanning_votes(
     conf = (confirmed * pts) @ fbt
     cover = over / np.maximum(fb_pts, 1e-12)[None, :]
     conf_of = None
-    if confirm_apart:  # per footprint B: confirmation only from masks that do not span B themselves
+    if confirm_apart > 0:  # per footprint B: confirmation only from masks that do not span B themselves
         conf_of = {}
+        sizes = onehot.sum(axis=1)  # (G,) voting masks per group
         for b in np.flatnonzero((cover >= min_cover).any(axis=0) & (fb_pts > 0)).tolist():
-            f_ns = f_i & (cover[:, b] < min_cover)[:, None]
+            spans_b = cover[:, b] >= min_cover
+            few = (onehot @ spans_b.astype(np.float32)) < confirm_apart * sizes  # (G,) groups where few span b
+            f_ns = f_i & ~(spans_b & few[member[nodes]])[:, None]
             cnt_b = np.rint(onehot @ f_ns.astype(np.float32)).astype(np.int64)
             conf_of[b] = f_i & (cnt_b[member[nodes]] - f_ns >= 1)
             conf[:, b] = (conf_of[b] * pts) @ fbt[:, b]

@@ -127,17 +127,22 @@ class VoteConfig:
     4 masks (8 views) joined two groups of ONE object (a whole-object mask over a fragment group);
     126 of the 129 others joined two objects (docs/benchmark/strict-iou.md, "Session 10")."""
 
-    span_confirm_apart: bool = False
-    """Ours (session 10, off; only read when ``span_cover`` > 0): ``span_confirm`` counts only the
-    group's masks that do not cover ``span_cover`` of the footprint themselves, so that two views'
-    masks that both span a neighbour do not confirm each other (fresh hard_0014: a tuna can's footprint
-    covered by 3 masks of its neighbour's group, confirm 0.97-1.00 from each other, the group's 7 other
-    masks silent; docs/benchmark/strict-iou.md, "Session 10: spanning masks that confirm each other")."""
+    span_confirm_apart: float = 0.0
+    """Ours (session 10, off; only read when ``span_cover`` > 0), share of the group's masks: when the
+    masks of a group that each cover ``span_cover`` of a footprint are fewer than this share of the
+    group's masks, ``span_confirm`` counts only the group's other masks there, so that a few views'
+    masks that all span a neighbour do not confirm each other (fresh hard_0014: a tuna can's footprint
+    covered by 3 of its neighbour's group's 10 masks, confirm 0.97-1.00 from each other, the other 7
+    silent). Not 1: a group whose masks mostly span a footprint is the whole of a split object
+    (fresh intermediate_0015: 3 of 5). docs/benchmark/strict-iou.md, "Session 10: spanning masks that
+    confirm each other"."""
 
     def __post_init__(self) -> None:
         if self.smooth_max_size < 0 or self.smooth_k < 1 or not 1 <= self.smooth_min_agree <= self.smooth_k:
             raise SceneError("VoteConfig needs smooth_max_size >= 0, smooth_k >= 1 and 1 <= smooth_min_agree <= "
                              f"smooth_k, got {self.smooth_max_size}, {self.smooth_k}, {self.smooth_min_agree}")
+        if not 0 <= self.span_confirm_apart <= 1:
+            raise SceneError(f"VoteConfig.span_confirm_apart must be in [0, 1], got {self.span_confirm_apart}")
         if not 0 <= self.span_min_views <= 1:
             raise SceneError(f"VoteConfig.span_min_views must be in [0, 1], got {self.span_min_views}")
         if self.span_cover < 0 or not 0 < self.span_confirm <= 1 or not 0 < self.span_occupancy <= 1:

@@ -285,26 +285,30 @@ def test_the_guards_only_remove_pairs(seed, min_views):
 
 def test_two_spanning_masks_do_not_confirm_each_other_with_confirm_apart():
     """Two views' masks of group A both cover B (under-segmented candidates): by default they confirm
-    each other and nothing is cleared; with ``confirm_apart`` only A's masks that do not cover B
-    themselves confirm, so both span B and are cleared there."""
+    each other and nothing is cleared; with ``confirm_apart`` above their share of A's masks only A's
+    masks that do not cover B themselves confirm, so both span B and are cleared there."""
     o = _occ()
     o[1, 5:8] = 1.0  # mask 1 of A spans B too; mask 2 stays on A only
     assert len(spanning_votes(GROUPS, o, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5).node) == 0
-    s = spanning_votes(GROUPS, o, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5, confirm_apart=True)
+    # 2 of A's 3 masks span B: a majority, not apart below 2/3
+    assert len(spanning_votes(GROUPS, o, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5, confirm_apart=0.6).node) == 0
+    s = spanning_votes(GROUPS, o, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5, confirm_apart=0.7)
     assert s.node.tolist() == [0, 1] and s.spanned.tolist() == [1, 1] and (s.confirm == 0).all()
     assert s.cleared.tolist() == [[0, 5], [0, 6], [0, 7], [1, 5], [1, 6], [1, 7]]
     # a third mask of A that covers only one of B's super-voxels (cover 1/3 < 0.5) still confirms there
     o2 = o.copy()
     o2[2, 5] = 1.0
-    s2 = spanning_votes(GROUPS, o2, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5, confirm_apart=True)
+    s2 = spanning_votes(GROUPS, o2, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5, confirm_apart=0.7)
     assert s2.cleared.tolist() == [[0, 6], [0, 7], [1, 6], [1, 7]]
     assert s2.confirm == pytest.approx([1 / 3, 1 / 3])
-    assert SegmentConfig().vote.span_confirm_apart is False  # off by default
+    assert SegmentConfig().vote.span_confirm_apart == 0.0  # off by default
+    with pytest.raises(SceneError):
+        VoteConfig(span_confirm_apart=1.5)
 
 
 @settings(max_examples=40, deadline=None)
-@given(st.integers(0, 2**31 - 1), st.floats(0.05, 1.0))
-def test_confirm_apart_only_adds_pairs(seed, cover):
+@given(st.integers(0, 2**31 - 1), st.floats(0.05, 1.0), st.floats(0.01, 1.0))
+def test_confirm_apart_only_adds_pairs(seed, cover, apart):
     """Counting confirmation from fewer masks never confirms more: every pair the default clears is
     also cleared with ``confirm_apart``, and each pair's confirm share is not higher."""
     rng = np.random.default_rng(seed)
@@ -316,7 +320,7 @@ def test_confirm_apart_only_adds_pairs(seed, cover):
     groups = tuple(tuple(sorted(p.tolist())) for p in np.split(rng.permutation(u), cuts) if len(p))
     eligible = np.ones(len(groups), bool)
     base = spanning_votes(groups, occ, counts, support, eligible, cover, 0.5)
-    apart = spanning_votes(groups, occ, counts, support, eligible, cover, 0.5, confirm_apart=True)
+    apart = spanning_votes(groups, occ, counts, support, eligible, cover, 0.5, confirm_apart=apart)
     assert {tuple(p) for p in base.cleared.tolist()} <= {tuple(p) for p in apart.cleared.tolist()}
     by_pair = {(n, b): c for n, b, c in zip(apart.node.tolist(), apart.spanned.tolist(), apart.confirm.tolist())}
     for n, b, c in zip(base.node.tolist(), base.spanned.tolist(), base.confirm.tolist()):
