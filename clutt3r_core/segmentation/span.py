@@ -108,7 +108,7 @@ def spanning_votes(
     instances of the vote before); None = every eligible group.
     node_view, min_views: (U,) view of each node; a mask spans only when the other masks of its group
     come from at least ``min_views`` distinct views (``VoteConfig.span_min_views``; 0 = no minimum).
-    confirm_apart: when the masks of a group that cover ``min_cover`` of a footprint are less than this
+    confirm_apart: when the masks of a group that cover ``min_cover`` of a footprint are at most this
     share of the group's masks, only its other masks confirm there (``VoteConfig.span_confirm_apart``;
     0 = off): a few views' masks that all span a neighbour do not confirm each other.
     """
@@ -152,7 +152,7 @@ def spanning_votes(
         sizes = onehot.sum(axis=1)  # (G,) voting masks per group
         for b in np.flatnonzero((cover >= min_cover).any(axis=0) & (fb_pts > 0)).tolist():
             spans_b = cover[:, b] >= min_cover
-            few = (onehot @ spans_b.astype(np.float32)) < confirm_apart * sizes  # (G,) groups where few span b
+            few = (onehot @ spans_b.astype(np.float32)) <= confirm_apart * sizes + 1e-6  # (G,) few span b
             f_ns = f_i & ~(spans_b & few[member[nodes]])[:, None]
             cnt_b = np.rint(onehot @ f_ns.astype(np.float32)).astype(np.int64)
             conf_of[b] = f_i & (cnt_b[member[nodes]] - f_ns >= 1)

@@ -129,13 +129,19 @@ class VoteConfig:
 
     span_confirm_apart: float = 0.0
     """Ours (session 10, off; only read when ``span_cover`` > 0), share of the group's masks: when the
-    masks of a group that each cover ``span_cover`` of a footprint are fewer than this share of the
+    masks of a group that each cover ``span_cover`` of a footprint are at most this share of the
     group's masks, ``span_confirm`` counts only the group's other masks there, so that a few views'
     masks that all span a neighbour do not confirm each other (fresh hard_0014: a tuna can's footprint
-    covered by 3 of its neighbour's group's 10 masks, confirm 0.97-1.00 from each other, the other 7
-    silent). Not 1: a group whose masks mostly span a footprint is the whole of a split object
-    (fresh intermediate_0015: 3 of 5). docs/benchmark/strict-iou.md, "Session 10: spanning masks that
+    covered by 3 of its neighbour's group's 6 masks before the absorption, confirm 0.97-1.00 from each
+    other, the other 3 silent; with ``span_before_absorb``). Not 1: a group whose masks mostly span a
+    footprint is the whole of a split object (fresh intermediate_0015: 3 of 5). docs/benchmark/strict-iou.md, "Session 10: spanning masks that
     confirm each other"."""
+    span_before_absorb: bool = False
+    """Ours (session 10, off; only read when ``span_cover`` > 0): the spanning masks are also found, and
+    their votes cleared, on the groups before the fragment absorption (``refine.absorb_fragments``),
+    which then runs on the cleared occupancy: a neighbour's spanning masks that won an object's
+    footprint otherwise absorb its group before the rule runs (fresh hard_0014: a tuna can, best IoU
+    0.30). docs/benchmark/strict-iou.md, "Session 10: spanning masks that confirm each other"."""
 
     def __post_init__(self) -> None:
         if self.smooth_max_size < 0 or self.smooth_k < 1 or not 1 <= self.smooth_min_agree <= self.smooth_k:

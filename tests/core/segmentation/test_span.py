@@ -290,7 +290,7 @@ def test_two_spanning_masks_do_not_confirm_each_other_with_confirm_apart():
     o = _occ()
     o[1, 5:8] = 1.0  # mask 1 of A spans B too; mask 2 stays on A only
     assert len(spanning_votes(GROUPS, o, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5).node) == 0
-    # 2 of A's 3 masks span B: a majority, not apart below 2/3
+    # 2 of A's 3 masks span B: a majority, apart only from a share of 2/3
     assert len(spanning_votes(GROUPS, o, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5, confirm_apart=0.6).node) == 0
     s = spanning_votes(GROUPS, o, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5, confirm_apart=0.7)
     assert s.node.tolist() == [0, 1] and s.spanned.tolist() == [1, 1] and (s.confirm == 0).all()
