@@ -325,3 +325,25 @@ def test_confirm_apart_only_adds_pairs(seed, cover, apart):
     by_pair = {(n, b): c for n, b, c in zip(apart.node.tolist(), apart.spanned.tolist(), apart.confirm.tolist())}
     for n, b, c in zip(base.node.tolist(), base.spanned.tolist(), base.confirm.tolist()):
         assert by_pair[(n, b)] <= c + 1e-6
+
+
+def test_span_before_absorb_runs_on_a_tiny_scene_and_records_both_passes():
+    """``span_before_absorb``: the pairs cleared before the absorption are kept in the trace with
+    those after it (sorted, unique, each an occupied (node, super-voxel) pair), and they include
+    at least the pairs the pre-absorption pass alone clears."""
+    from clutt3r_core.config import with_fields
+    from clutt3r_core.pipeline import segment
+
+    from tests.core._tiny_run import tiny_scene
+
+    scene = tiny_scene()
+    loose = {"vote.span_cover": 0.05, "vote.span_confirm": 1.0, "vote.span_instances_only": False,
+             "vote.span_min_views": 0.0, "refine.min_won_fraction": 0.0}
+    pre_only = segment(scene, with_fields(SegmentConfig(), loose)).trace.vote.span_cleared  # no absorption
+    seg = segment(scene, with_fields(SegmentConfig(), {**loose, "vote.span_before_absorb": True}))
+    sc = seg.trace.vote.span_cleared
+    assert len(pre_only) and sc.shape[1] == 2
+    flat = sc[:, 0].astype(np.int64) * seg.trace.occupancy.shape[1] + sc[:, 1]
+    assert (np.diff(flat) > 0).all()
+    assert (seg.trace.occupancy[sc[:, 0], sc[:, 1]] > 0).all()
+    assert {tuple(p) for p in pre_only.tolist()} <= {tuple(p) for p in sc.tolist()}
