@@ -238,6 +238,8 @@ ADDED_AFTER_V1: dict[str, Any] = {
     "vote.span_occupancy": 0.5,
     "vote.span_instances_only": False,
     "vote.span_min_views": 0.0,
+    "vote.span_confirm_apart": 0.0,
+    "vote.span_before_absorb": False,
     "refine.min_won_fraction": 0.0,
     "refine.absorb_min_semantic": 0.0,
     "refine.weak_echo_ratio": 0.0,

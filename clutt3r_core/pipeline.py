@@ -41,7 +41,7 @@ from clutt3r_core.segmentation.grouping import (
 from clutt3r_core.segmentation.instance_surface import smooth_instances
 from clutt3r_core.segmentation.contact_masks import mask_views
 from clutt3r_core.segmentation.refine import absorb_fragments, contact_labels, labels_before_contact
-from clutt3r_core.segmentation.span import span_revote
+from clutt3r_core.segmentation.span import cleared_occupancy, span_revote
 from clutt3r_core.segmentation.trace import StageClock, StageTiming, Trace
 from clutt3r_core.segmentation.trees import InstanceTree, build_tree_overlaps
 from clutt3r_core.segmentation.unvoted import unvoted_instances
@@ -309,15 +309,28 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
                                    else None)
 
         vote = revote(grouping.groups)
+        occ_vote, pre_cleared = occupancy, None
+        if config.vote.span_cover > 0 and config.vote.span_before_absorb:
+            # ours (session 10, off): the spanning masks' votes are cleared before the absorption
+            # too, so that a neighbour's spanning masks do not absorb the object they span
+            g0 = grouping.groups
+            vote = span_revote(g0, occupancy, sv.counts, sv.support, vote, lambda occ: revote(g0, occ),
+                               config.vote, nodes.view, len(views))
+            pre_cleared = vote.span_cleared
+            occ_vote = cleared_occupancy(occupancy, pre_cleared)
         # ours (issue 13): fragment groups join the instance that won their masks' footprint
-        grouping, vote = absorb_fragments(grouping, vote, occupancy, sv.counts, s_spat, s_sem, revote, config.refine)
+        grouping, vote = absorb_fragments(grouping, vote, occ_vote, sv.counts, s_spat, s_sem,
+                                          lambda g: revote(g, occ_vote), config.refine)
         if config.vote.span_cover > 0:
             # ours (session 9; 0 = off): a mask spanning another group's footprint, unconfirmed
             # by its own group, does not vote there (``segmentation.span``); after the absorption, so
             # that a fragment of the mask's own object has joined its group first
             groups = grouping.groups
-            vote = span_revote(groups, occupancy, sv.counts, sv.support, vote, lambda occ: revote(groups, occ),
+            vote = span_revote(groups, occ_vote, sv.counts, sv.support, vote, lambda occ: revote(groups, occ),
                                config.vote, nodes.view, len(views))
+            if pre_cleared is not None and len(pre_cleared):
+                both = np.unique(np.concatenate([pre_cleared, vote.span_cleared]).astype(np.int64), axis=0)
+                vote = dataclasses.replace(vote, span_cleared=both.astype(np.int32))
         # the vote's labels per voxel; ours, off by default: small super-voxels smoothed (session 8),
         # weak echoes unlabelled (issue 13). One function, so that the labels the contact rule
         # changes can be recomputed from a run (``refine.run_labels_before_contact``)

@@ -95,6 +95,7 @@ def spanning_votes(
     spannable: np.ndarray | None = None,
     node_view: np.ndarray | None = None,
     min_views: int = 0,
+    confirm_apart: float = 0.0,
 ) -> SpanningVotes:
     """Masks of each group that span another group's footprint (module docstring).
 
@@ -107,6 +108,9 @@ def spanning_votes(
     instances of the vote before); None = every eligible group.
     node_view, min_views: (U,) view of each node; a mask spans only when the other masks of its group
     come from at least ``min_views`` distinct views (``VoteConfig.span_min_views``; 0 = no minimum).
+    confirm_apart: when the masks of a group that cover ``min_cover`` of a footprint are at most this
+    share of the group's masks, only its other masks confirm there (``VoteConfig.span_confirm_apart``;
+    0 = off): a few views' masks that all span a neighbour do not confirm each other.
     """
     occ = np.asarray(occupancy, np.float32)
     u, k = occ.shape
@@ -142,6 +146,17 @@ def spanning_votes(
     over = (f_i * pts) @ fbt  # (n, G) points of X = F_i & F_B
     conf = (confirmed * pts) @ fbt
     cover = over / np.maximum(fb_pts, 1e-12)[None, :]
+    conf_of = None
+    if confirm_apart > 0:  # per footprint B: confirmation only from masks that do not span B themselves
+        conf_of = {}
+        sizes = onehot.sum(axis=1)  # (G,) voting masks per group
+        for b in np.flatnonzero((cover >= min_cover).any(axis=0) & (fb_pts > 0)).tolist():
+            spans_b = cover[:, b] >= min_cover
+            few = (onehot @ spans_b.astype(np.float32)) <= confirm_apart * sizes + 1e-6  # (G,) few span b
+            f_ns = f_i & ~(spans_b & few[member[nodes]])[:, None]
+            cnt_b = np.rint(onehot @ f_ns.astype(np.float32)).astype(np.int64)
+            conf_of[b] = f_i & (cnt_b[member[nodes]] - f_ns >= 1)
+            conf[:, b] = (conf_of[b] * pts) @ fbt[:, b]
     confirm = conf / np.maximum(over, 1e-12)
     span = (cover >= min_cover) & (confirm < max_confirm) & (fb_pts > 0)[None, :]
     if spannable is not None:
@@ -154,7 +169,7 @@ def spanning_votes(
         return _empty()
     pairs = []
     for r, b in zip(rows.tolist(), cols.tolist()):
-        sv = live[f_i[r] & fb[b] & ~confirmed[r]]
+        sv = live[f_i[r] & fb[b] & ~(confirmed[r] if conf_of is None else conf_of[b][r])]
         pairs.append(np.stack([np.full(len(sv), nodes[r]), sv], axis=1))
     both = np.concatenate(pairs).astype(np.int64)
     flat = np.unique(both[:, 0] * k + both[:, 1])  # sorted by node, then super-voxel
@@ -217,7 +232,7 @@ def span_revote(
         spannable[np.asarray(vote.instance_group, np.int64)] = True
     min_views = int(np.ceil(cfg.span_min_views * n_views - 1e-9)) if node_view is not None else 0
     span = spanning_votes(groups, occupancy, sv_counts, support, eligible, cfg.span_cover, cfg.span_confirm,
-                          cfg.span_occupancy, spannable, node_view, min_views)
+                          cfg.span_occupancy, spannable, node_view, min_views, cfg.span_confirm_apart)
     if not len(span.cleared):
         return replace(vote, span_cleared=span.cleared)
     cleared = span.cleared

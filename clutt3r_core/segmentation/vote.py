@@ -127,10 +127,34 @@ class VoteConfig:
     4 masks (8 views) joined two groups of ONE object (a whole-object mask over a fragment group);
     126 of the 129 others joined two objects (docs/benchmark/strict-iou.md, "Session 10")."""
 
+    span_confirm_apart: float = 0.0
+    """Ours (session 10, off; only read when ``span_cover`` > 0), share of the group's masks: when the
+    masks of a group that each cover ``span_cover`` of a footprint are at most this share of the
+    group's masks, ``span_confirm`` counts only the group's other masks there, so that a few views'
+    masks that all span a neighbour do not confirm each other (fresh hard_0014: a tuna can's footprint
+    covered by 3 of its neighbour's group's 6 masks before the absorption, confirm 0.97-1.00 from each
+    other, the other 3 silent; with ``span_before_absorb``). Not 1: a group whose masks mostly span a
+    footprint is the whole of a split object (fresh intermediate_0015: 3 of 5). At 0.5 (A/B, same
+    process): tuning seeds 2-3 AP equal (54.18), check seeds 0-1 56.34 -> 57.22 (AP50 94.86 -> 95.97),
+    fresh intermediate + hard 4-5, 10-17 53.15 -> 53.44, no object under IoU 0.5 that was over it;
+    off because tuning is not higher (docs/benchmark/strict-iou.md, "Session 10: spanning masks that
+    confirm each other")."""
+    span_before_absorb: bool = False
+    """Ours (session 10, off; only read when ``span_cover`` > 0): the spanning masks are also found, and
+    their votes cleared, on the groups before the fragment absorption (``refine.absorb_fragments``),
+    which then runs on the cleared occupancy: a neighbour's spanning masks that won an object's
+    footprint otherwise absorb its group before the rule runs (fresh hard_0014: a tuna can, best IoU
+    0.30 -> 0.72 with ``span_confirm_apart`` 0.5). Off: before the absorption the whole object's
+    masks also span its own one-mask fragments, which then stay instances (fresh hard_0004, hard_0005:
+    two objects under IoU 0.5; check AP 56.34 -> 55.66; docs/benchmark/strict-iou.md, "Session 10:
+    spanning masks that confirm each other")."""
+
     def __post_init__(self) -> None:
         if self.smooth_max_size < 0 or self.smooth_k < 1 or not 1 <= self.smooth_min_agree <= self.smooth_k:
             raise SceneError("VoteConfig needs smooth_max_size >= 0, smooth_k >= 1 and 1 <= smooth_min_agree <= "
                              f"smooth_k, got {self.smooth_max_size}, {self.smooth_k}, {self.smooth_min_agree}")
+        if not 0 <= self.span_confirm_apart <= 1:
+            raise SceneError(f"VoteConfig.span_confirm_apart must be in [0, 1], got {self.span_confirm_apart}")
         if not 0 <= self.span_min_views <= 1:
             raise SceneError(f"VoteConfig.span_min_views must be in [0, 1], got {self.span_min_views}")
         if self.span_cover < 0 or not 0 < self.span_confirm <= 1 or not 0 < self.span_occupancy <= 1:

@@ -281,3 +281,69 @@ def test_the_guards_only_remove_pairs(seed, min_views):
     assert spannable[kept.spanned].all()
     for node, gi in zip(kept.node.tolist(), kept.group.tolist()):
         assert len({int(view[j]) for j in groups[gi] if j != node}) >= min_views
+
+
+def test_two_spanning_masks_do_not_confirm_each_other_with_confirm_apart():
+    """Two views' masks of group A both cover B (under-segmented candidates): by default they confirm
+    each other and nothing is cleared; with ``confirm_apart`` above their share of A's masks only A's
+    masks that do not cover B themselves confirm, so both span B and are cleared there."""
+    o = _occ()
+    o[1, 5:8] = 1.0  # mask 1 of A spans B too; mask 2 stays on A only
+    assert len(spanning_votes(GROUPS, o, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5).node) == 0
+    # 2 of A's 3 masks span B: a majority, apart only from a share of 2/3
+    assert len(spanning_votes(GROUPS, o, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5, confirm_apart=0.6).node) == 0
+    s = spanning_votes(GROUPS, o, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5, confirm_apart=0.7)
+    assert s.node.tolist() == [0, 1] and s.spanned.tolist() == [1, 1] and (s.confirm == 0).all()
+    assert s.cleared.tolist() == [[0, 5], [0, 6], [0, 7], [1, 5], [1, 6], [1, 7]]
+    # a third mask of A that covers only one of B's super-voxels (cover 1/3 < 0.5) still confirms there
+    o2 = o.copy()
+    o2[2, 5] = 1.0
+    s2 = spanning_votes(GROUPS, o2, COUNTS, NO_SUPPORT, ELIGIBLE, 0.5, 0.5, confirm_apart=0.7)
+    assert s2.cleared.tolist() == [[0, 6], [0, 7], [1, 6], [1, 7]]
+    assert s2.confirm == pytest.approx([1 / 3, 1 / 3])
+    assert SegmentConfig().vote.span_confirm_apart == 0.0  # off by default
+    with pytest.raises(SceneError):
+        VoteConfig(span_confirm_apart=1.5)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.floats(0.05, 1.0), st.floats(0.01, 1.0))
+def test_confirm_apart_only_adds_pairs(seed, cover, apart):
+    """Counting confirmation from fewer masks never confirms more: every pair the default clears is
+    also cleared with ``confirm_apart``, and each pair's confirm share is not higher."""
+    rng = np.random.default_rng(seed)
+    u, k = 12, 20
+    occ = np.where(rng.random((u, k)) < 0.4, rng.random((u, k)), 0.0).astype(np.float32)
+    counts = rng.integers(1, 50, k)
+    support = rng.random(k) < 0.2
+    cuts = np.sort(rng.choice(np.arange(1, u), 3, replace=False))
+    groups = tuple(tuple(sorted(p.tolist())) for p in np.split(rng.permutation(u), cuts) if len(p))
+    eligible = np.ones(len(groups), bool)
+    base = spanning_votes(groups, occ, counts, support, eligible, cover, 0.5)
+    apart = spanning_votes(groups, occ, counts, support, eligible, cover, 0.5, confirm_apart=apart)
+    assert {tuple(p) for p in base.cleared.tolist()} <= {tuple(p) for p in apart.cleared.tolist()}
+    by_pair = {(n, b): c for n, b, c in zip(apart.node.tolist(), apart.spanned.tolist(), apart.confirm.tolist())}
+    for n, b, c in zip(base.node.tolist(), base.spanned.tolist(), base.confirm.tolist()):
+        assert by_pair[(n, b)] <= c + 1e-6
+
+
+def test_span_before_absorb_runs_on_a_tiny_scene_and_records_both_passes():
+    """``span_before_absorb``: the pairs cleared before the absorption are kept in the trace with
+    those after it (sorted, unique, each an occupied (node, super-voxel) pair), and they include
+    at least the pairs the pre-absorption pass alone clears."""
+    from clutt3r_core.config import with_fields
+    from clutt3r_core.pipeline import segment
+
+    from tests.core._tiny_run import tiny_scene
+
+    scene = tiny_scene()
+    loose = {"vote.span_cover": 0.05, "vote.span_confirm": 1.0, "vote.span_instances_only": False,
+             "vote.span_min_views": 0.0, "refine.min_won_fraction": 0.0}
+    pre_only = segment(scene, with_fields(SegmentConfig(), loose)).trace.vote.span_cleared  # no absorption
+    seg = segment(scene, with_fields(SegmentConfig(), {**loose, "vote.span_before_absorb": True}))
+    sc = seg.trace.vote.span_cleared
+    assert len(pre_only) and sc.shape[1] == 2
+    flat = sc[:, 0].astype(np.int64) * seg.trace.occupancy.shape[1] + sc[:, 1]
+    assert (np.diff(flat) > 0).all()
+    assert (seg.trace.occupancy[sc[:, 0], sc[:, 1]] > 0).all()
+    assert {tuple(p) for p in pre_only.tolist()} <= {tuple(p) for p in sc.tolist()}
