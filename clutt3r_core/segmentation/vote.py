@@ -137,8 +137,9 @@ class VoteConfig:
     footprint is the whole of a split object (fresh intermediate_0015: 3 of 5). At 0.5 (A/B, same
     process): tuning seeds 2-3 AP equal (54.18), check seeds 0-1 56.34 -> 57.22 (AP50 94.86 -> 95.97),
     fresh intermediate + hard 4-5, 10-17 53.15 -> 53.44, no object under IoU 0.5 that was over it;
-    off because tuning is not higher (docs/benchmark/strict-iou.md, "Session 10: spanning masks that
-    confirm each other")."""
+    off because tuning is not higher, and at 0.49 the lead's held-out hard_0009 lost two objects at
+    IoU 0.5 (AP25 / AP50 / AP 92.0 / 79.5 / 40.1 -> 82.2 / 70.5 / 37.4; docs/benchmark/strict-iou.md,
+    "Session 10: spanning masks that confirm each other")."""
     span_before_absorb: bool = False
     """Ours (session 10, off; only read when ``span_cover`` > 0): the spanning masks are also found, and
     their votes cleared, on the groups before the fragment absorption (``refine.absorb_fragments``),
