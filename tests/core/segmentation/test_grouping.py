@@ -202,11 +202,11 @@ def test_semantic_stage_never_joins_look_alikes_that_share_no_super_voxel():
     assert len(literal.groups) == 1 and literal.merges[-1].stage == "semantic"
 
 
-def test_reunion_joins_an_object_split_into_parts_in_two_views_only_when_enabled():
-    # object Y split into the same two halves in views 0 and 1, seen whole in views 2 and 3: the
-    # wholes join the left halves (S 0.5), and the one-mask-per-view rule keeps the right halves out
+def _split_in_two_views() -> list:
+    """One object split into the same two halves in views 0 and 1 and seen whole in views 2 and 3
+    (the reunion tests' scene)."""
     left, right = (4, 5, 6, 7), (8, 9, 10, 11)
-    spec = [
+    return [
         (0, 1, None, occ(*left)),
         (0, 2, None, occ(*right)),
         (1, 1, None, occ(*left)),
@@ -214,7 +214,12 @@ def test_reunion_joins_an_object_split_into_parts_in_two_views_only_when_enabled
         (2, 1, None, occ(*range(4, 12))),
         (3, 1, None, occ(*range(4, 12))),
     ]
-    nodes, sim, O, idx, V = build(spec)
+
+
+def test_reunion_joins_an_object_split_into_parts_in_two_views_only_when_enabled():
+    # object Y split into the same two halves in views 0 and 1, seen whole in views 2 and 3: the
+    # wholes join the left halves (S 0.5), and the one-mask-per-view rule keeps the right halves out
+    nodes, sim, O, idx, V = build(_split_in_two_views())
     plain = run_grouping(nodes, sim, V, GroupingConfig())
     assert sorted(len(g) for g in plain.groups) == [2, 4]
     res = run_grouping(nodes, sim, V, GroupingConfig(reunion_tau=0.25))
@@ -231,16 +236,7 @@ def test_reunion_containment_gate_keeps_a_mask_that_holds_the_other_apart():
     # the reunion case above; per view, pixel overlaps of its two masks (node order, diagonal =
     # areas). Side by side (the parts of one object) the gate lets the reunion through; where a
     # mask of view 0 holds the other one (a mask spanning the object and a neighbour) it does not
-    left, right = (4, 5, 6, 7), (8, 9, 10, 11)
-    spec = [
-        (0, 1, None, occ(*left)),
-        (0, 2, None, occ(*right)),
-        (1, 1, None, occ(*left)),
-        (1, 2, None, occ(*right)),
-        (2, 1, None, occ(*range(4, 12))),
-        (3, 1, None, occ(*range(4, 12))),
-    ]
-    nodes, sim, O, idx, V = build(spec)
+    nodes, sim, O, idx, V = build(_split_in_two_views())
     apart = [np.array([[100, 0], [0, 80]]), np.array([[90, 3], [3, 70]]), np.array([[200]]), np.array([[210]])]
     held = [np.array([[100, 100], [100, 300]]), apart[1], apart[2], apart[3]]
     gate = GroupingConfig(reunion_tau=0.25, reunion_max_contain=0.5)
