@@ -259,19 +259,26 @@ def test_a_group_with_few_views_does_not_span():
         VoteConfig(span_min_views=1.5)
 
 
-@settings(max_examples=40, deadline=None)
-@given(st.integers(0, 2**31 - 1), st.integers(0, 4))
-def test_the_guards_only_remove_pairs(seed, min_views):
-    """Session 10's guards (spannable groups, minimum views) clear a subset of what the rule clears
-    without them, and every pair they keep has a spanned group that may be spanned."""
-    rng = np.random.default_rng(seed)
+def _random_groups(rng):
+    """A random (groups, occupancy, counts, support, eligible) set for the property tests: 12 masks
+    in up to 4 groups over 20 super-voxels."""
     u, k = 12, 20
     occ = np.where(rng.random((u, k)) < 0.4, rng.random((u, k)), 0.0).astype(np.float32)
     counts = rng.integers(1, 50, k)
     support = rng.random(k) < 0.2
     cuts = np.sort(rng.choice(np.arange(1, u), 3, replace=False))
     groups = tuple(tuple(sorted(p.tolist())) for p in np.split(rng.permutation(u), cuts) if len(p))
-    eligible = np.ones(len(groups), bool)
+    return groups, occ, counts, support, np.ones(len(groups), bool)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(0, 4))
+def test_the_guards_only_remove_pairs(seed, min_views):
+    """Session 10's guards (spannable groups, minimum views) clear a subset of what the rule clears
+    without them, and every pair they keep has a spanned group that may be spanned."""
+    rng = np.random.default_rng(seed)
+    groups, occ, counts, support, eligible = _random_groups(rng)
+    u = occ.shape[0]
     view = rng.integers(0, 6, u)
     spannable = rng.random(len(groups)) < 0.6
     free = spanning_votes(groups, occ, counts, support, eligible, 0.3, 0.5)
@@ -312,13 +319,8 @@ def test_confirm_apart_only_adds_pairs(seed, cover, apart):
     """Counting confirmation from fewer masks never confirms more: every pair the default clears is
     also cleared with ``confirm_apart``, and each pair's confirm share is not higher."""
     rng = np.random.default_rng(seed)
-    u, k = 12, 20
-    occ = np.where(rng.random((u, k)) < 0.4, rng.random((u, k)), 0.0).astype(np.float32)
-    counts = rng.integers(1, 50, k)
-    support = rng.random(k) < 0.2
-    cuts = np.sort(rng.choice(np.arange(1, u), 3, replace=False))
-    groups = tuple(tuple(sorted(p.tolist())) for p in np.split(rng.permutation(u), cuts) if len(p))
-    eligible = np.ones(len(groups), bool)
+    groups, occ, counts, support, eligible = _random_groups(rng)
+    u = occ.shape[0]
     base = spanning_votes(groups, occ, counts, support, eligible, cover, 0.5)
     apart = spanning_votes(groups, occ, counts, support, eligible, cover, 0.5, confirm_apart=apart)
     assert {tuple(p) for p in base.cleared.tolist()} <= {tuple(p) for p in apart.cleared.tolist()}
