@@ -41,7 +41,7 @@ from clutt3r_core.segmentation.grouping import (
 from clutt3r_core.segmentation.instance_surface import smooth_instances
 from clutt3r_core.segmentation.contact_masks import mask_views
 from clutt3r_core.segmentation.refine import absorb_fragments, contact_labels, labels_before_contact
-from clutt3r_core.segmentation.span import cleared_occupancy, span_revote
+from clutt3r_core.segmentation.span import cleared_occupancy, span_revote, unique_pairs
 from clutt3r_core.segmentation.trace import StageClock, StageTiming, Trace
 from clutt3r_core.segmentation.trees import InstanceTree, build_tree_overlaps
 from clutt3r_core.segmentation.unvoted import unvoted_instances
@@ -303,10 +303,12 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
         grouping = run_grouping(nodes, sim, len(views), config.grouping, duplicates=dups.pairs,
                                 overlaps=[o for _, o in built])
     with timer("vote"):
+        # the reunion's confidence weights: only its own merges set them, so the absorption's later
+        # merges leave them as they are (``grouping.reunion_weights``)
+        mask_weight = reunion_weights(grouping.merges, nodes.view) if config.grouping.reunion_tau > 0 else None
+
         def revote(groups, occ=occupancy):
-            return supervoxel_vote(groups, occ, sv.counts, sv.support, s_spat, len(views), config.vote,
-                                   reunion_weights(grouping.merges, nodes.view) if config.grouping.reunion_tau > 0
-                                   else None)
+            return supervoxel_vote(groups, occ, sv.counts, sv.support, s_spat, len(views), config.vote, mask_weight)
 
         vote = revote(grouping.groups)
         occ_vote, pre_cleared = occupancy, None
@@ -329,8 +331,7 @@ def _segment(scene: Scene, config: SegmentConfig, embedder: MaskEmbedder | None,
             vote = span_revote(groups, occ_vote, sv.counts, sv.support, vote, lambda occ: revote(groups, occ),
                                config.vote, nodes.view, len(views))
             if pre_cleared is not None and len(pre_cleared):
-                both = np.unique(np.concatenate([pre_cleared, vote.span_cleared]).astype(np.int64), axis=0)
-                vote = dataclasses.replace(vote, span_cleared=both.astype(np.int32))
+                vote = dataclasses.replace(vote, span_cleared=unique_pairs([pre_cleared, vote.span_cleared], sv.num))
         # the vote's labels per voxel; ours, off by default: small super-voxels smoothed (session 8),
         # weak echoes unlabelled (issue 13). One function, so that the labels the contact rule
         # changes can be recomputed from a run (``refine.run_labels_before_contact``)

@@ -45,7 +45,7 @@ import numpy as np
 from clutt3r_core.errors import SceneError
 from clutt3r_core.segmentation.vote import VoteConfig, VoteResult, keep_scores
 
-__all__ = ["SpanningVotes", "spanning_votes", "cleared_occupancy", "span_revote"]
+__all__ = ["SpanningVotes", "spanning_votes", "cleared_occupancy", "span_revote", "unique_pairs"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -171,17 +171,23 @@ def spanning_votes(
     for r, b in zip(rows.tolist(), cols.tolist()):
         sv = live[f_i[r] & fb[b] & ~(confirmed[r] if conf_of is None else conf_of[b][r])]
         pairs.append(np.stack([np.full(len(sv), nodes[r]), sv], axis=1))
-    both = np.concatenate(pairs).astype(np.int64)
-    flat = np.unique(both[:, 0] * k + both[:, 1])  # sorted by node, then super-voxel
-    cleared = np.stack([flat // k, flat % k], axis=1)
+    cleared = unique_pairs(pairs, k)
     return SpanningVotes(
         node=nodes[rows].astype(np.int32),
         group=member[nodes[rows]].astype(np.int32),
         spanned=cols.astype(np.int32),
         cover=cover[rows, cols].astype(np.float32),
         confirm=confirm[rows, cols].astype(np.float32),
-        cleared=cleared.reshape(-1, 2).astype(np.int32),
+        cleared=cleared,
     )
+
+
+def unique_pairs(parts, k: int) -> np.ndarray:
+    """(C, 2) int32 the (node, super-voxel) pairs of ``parts`` (a list of (n_i, 2) int arrays),
+    each once, sorted by node then super-voxel; ``k``: the number of super-voxels (> every one)."""
+    both = np.concatenate([np.asarray(p, np.int64).reshape(-1, 2) for p in parts])
+    flat = np.unique(both[:, 0] * k + both[:, 1])
+    return np.stack([flat // k, flat % k], axis=1).astype(np.int32)
 
 
 def _other_views(groups: tuple[tuple[int, ...], ...], member: np.ndarray, nodes: np.ndarray,
@@ -257,7 +263,4 @@ def _instances_take(groups: tuple[tuple[int, ...], ...], occupancy: np.ndarray, 
     r, c = np.nonzero(np.asarray(occupancy)[np.ix_(others, ks)] > 0)
     if not len(r):
         return cleared
-    k = np.asarray(occupancy).shape[1]
-    both = np.concatenate([cleared.astype(np.int64), np.stack([others[r], ks[c]], axis=1)])
-    flat = np.unique(both[:, 0] * k + both[:, 1])
-    return np.stack([flat // k, flat % k], axis=1).astype(np.int32)
+    return unique_pairs([cleared, np.stack([others[r], ks[c]], axis=1)], np.asarray(occupancy).shape[1])
