@@ -35,7 +35,7 @@ from clutt3r_core.segmentation.vote import VoteConfig, VoteResult, keep_scores, 
 
 __all__ = ["RefineConfig", "won_fractions", "absorb_fragments", "ABSORB_STAGE", "weak_echoes",
            "ContactLabels", "support_levels", "contact_labels", "contact_on", "labels_before_contact",
-           "run_labels_before_contact"]
+           "recompute_labels", "run_labels_before_contact"]
 
 ABSORB_STAGE = "absorb"
 """``MergeStep.stage`` of a fragment absorption."""
@@ -540,6 +540,17 @@ def run_labels_before_contact(seg) -> np.ndarray:
     inst = np.asarray(seg.instance)
     if not contact_on(refine) or surface is None or surface.method != "tsdf":
         return inst
+    return recompute_labels(seg, refine)
+
+
+def recompute_labels(seg, refine: RefineConfig) -> np.ndarray:
+    """(N,) the labels a run (``pipeline.Segmentation``) held before its contact rule, recomputed with
+    the refinement settings ``refine`` (``run_labels_before_contact``: the run's own; the update's
+    ``geometry.run_geometry``: with ``weak_echo_ratio`` 0): the vote's labels of the segmented cloud
+    (``labels_before_contact``), the instances added after the vote as the run has them, and the rim
+    voxels attached to those again (``rim.attach_labels`` with the run's settings)."""
+    cfg = seg.trace.config
+    inst = np.asarray(seg.instance)
     from clutt3r_core.update.run_labels import fused_count
 
     n = fused_count(seg)  # the segmented cloud; its rim voxels follow

@@ -74,29 +74,13 @@ def run_geometry(seg) -> np.ndarray:
 
 def _labels_without_echoes(seg) -> np.ndarray:
     """(N,) the run's labels before the weak-echo and contact rules (``run_geometry``): the pipeline's
-    computation of the labels before the contact (``refine.run_labels_before_contact``) with
-    ``weak_echo_ratio`` 0, whether or not the contact rule ran."""
+    computation of the labels before the contact (``refine.recompute_labels``, as
+    ``run_labels_before_contact``) with ``weak_echo_ratio`` 0, whether or not the contact rule ran."""
     from dataclasses import replace
 
-    from clutt3r_core.segmentation.refine import labels_before_contact
+    from clutt3r_core.segmentation.refine import recompute_labels
 
-    cfg = seg.trace.config
-    inst = np.asarray(seg.instance)
-    n = fused_count(seg)  # the segmented cloud; its rim voxels follow
-    base = labels_before_contact(seg.trace.vote.sv_label, seg.sv_labels[:n], seg.sv_support, seg.points[:n],
-                                 seg.normals[:n], seg.counts[:n], cfg.pointcloud.voxel_size, cfg.vote,
-                                 replace(cfg.refine, weak_echo_ratio=0.0))
-    # instances added after the vote (ids from the vote's count on) keep the run's label, as in
-    # ``run_labels_before_contact``: the vote never labelled them
-    added = inst[:n] >= len(seg.trace.vote.instance_group)
-    base = np.where(added, inst[:n], base)
-    if n == len(inst):
-        return base
-    from clutt3r_core.rim import attach_labels
-
-    att = attach_labels(seg.points[:n], base, seg.points[n:], cfg.pointcloud.surface_rim_attach_k,
-                        cfg.pointcloud.surface_rim_attach_distance)
-    return np.concatenate([base, att.label])
+    return recompute_labels(seg, replace(seg.trace.config.refine, weak_echo_ratio=0.0))
 
 
 def corrected_geometry_labels(seg, corrected: np.ndarray, n: int, pre: np.ndarray | None = None) -> np.ndarray:
