@@ -104,23 +104,37 @@ def first_join(merges, own: set[int], other: set[int]) -> str:
     return "vote"
 
 
-def diagnose(spec, cache: str, iou_min: float, cfg: SegmentConfig) -> list[dict]:
+def segment_and_match(spec, cache: str, cfg: SegmentConfig):
+    """One generated scene segmented and matched to its GT: (scene, seg, iou, pid, gid, pg, comp, dom):
+    ``instance_iou``'s matrix and ids on the 10 mm cells, each point's GT object (``point_gt``), (I,
+    n_obj + 1) raw points of each instance per object (last column: table / none) and each instance's
+    dominant object (-1: mostly table). Shared by this script and ``split_pairs.py``."""
     scene = _load_prepared(cache, spec).scene
     gt = scene.ground_truth
     n_obj = len(gt.objects)
     seg = segment(scene, cfg, progress=False)
-    tr = seg.trace
     iou, pid, gid, _ = instance_iou(voxelize_labels(seg.points, seg.instance, EVAL_VOXEL),
                                     voxelize_labels(gt.points, gt.point_labels, EVAL_VOXEL))
     pg = point_gt(seg.points, gt)
     w = seg.counts.astype(np.float64)
     inst = seg.instance
     n_inst = len(seg.scores)
-    # each instance's dominant object by points (-1: mostly table)
     comp = np.zeros((n_inst, n_obj + 1))
     ok = inst >= 0
     np.add.at(comp, (inst[ok], np.where(pg[ok] < 0, n_obj, pg[ok])), w[ok])
-    inst_dom = np.where(comp.argmax(axis=1) == n_obj, -1, comp.argmax(axis=1)) if n_inst else np.zeros(0, int)
+    dom = np.where(comp.argmax(axis=1) == n_obj, -1, comp.argmax(axis=1)) if n_inst else np.zeros(0, int)
+    return scene, seg, iou, pid, gid, pg, comp, dom
+
+
+def diagnose(spec, cache: str, iou_min: float, cfg: SegmentConfig) -> list[dict]:
+    scene, seg, iou, pid, gid, pg, comp, inst_dom = segment_and_match(spec, cache, cfg)
+    gt = scene.ground_truth
+    n_obj = len(gt.objects)
+    tr = seg.trace
+    w = seg.counts.astype(np.float64)
+    inst = seg.instance
+    n_inst = len(seg.scores)
+    ok = inst >= 0
     owner, _ = mask_owner(scene, tr, n_obj)
     usable = tr.nodes.is_leaf & ~tr.nodes.background
     reason = tr.vote.sv_reason

@@ -21,11 +21,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 sys.path.insert(0, str(Path(__file__).parent))  # this folder's sibling script
-from ap50_misses import point_gt, mask_owner
+from ap50_misses import mask_owner, segment_and_match
 from clutt3r_core.config import SegmentConfig
-from clutt3r_core.evaluation.metrics import EVAL_VOXEL, instance_iou, voxelize_labels
-from clutt3r_core.evaluation.runner import _load_prepared, synth_suite
-from clutt3r_core.pipeline import segment
+from clutt3r_core.evaluation.runner import synth_suite
 
 
 def ancestors(parent, i):
@@ -67,18 +65,11 @@ def pair_feats(tr, A, B, views=None):
 
 
 def run(spec, cache, cfg):
-    scene = _load_prepared(cache, spec).scene
+    scene, seg, iou, pid, gid, pg, comp, dom = segment_and_match(spec, cache, cfg)
     gt = scene.ground_truth
     n_obj = len(gt.objects)
-    seg = segment(scene, cfg, progress=False)
     tr = seg.trace
-    iou, pid, gid, _ = instance_iou(voxelize_labels(seg.points, seg.instance, EVAL_VOXEL),
-                                    voxelize_labels(gt.points, gt.point_labels, EVAL_VOXEL))
-    pg = point_gt(seg.points, gt)
-    w = seg.counts.astype(float); inst = seg.instance; n_inst = len(seg.scores); ok = inst >= 0
-    comp = np.zeros((n_inst, n_obj + 1))
-    np.add.at(comp, (inst[ok], np.where(pg[ok] < 0, n_obj, pg[ok])), w[ok])
-    dom = np.where(comp.argmax(1) == n_obj, -1, comp.argmax(1))
+    w = seg.counts.astype(float); inst = seg.instance; n_inst = len(seg.scores)
     tot = np.bincount(np.where(pg < 0, n_obj, pg), weights=w, minlength=n_obj + 1)
     groups = tr.grouping.groups; ig = tr.vote.instance_group
     owner, _ = mask_owner(scene, tr, n_obj)
