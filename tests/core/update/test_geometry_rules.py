@@ -22,6 +22,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from clutt3r_core.annotations import Annotations, Merge
+from tests.core.update.test_scene_after_geometry import _chain  # one saved update of a run
 
 SEED = 14
 ECHO = {"refine.weak_echo_ratio": 0.2}
@@ -117,24 +118,6 @@ def fill_run(segs, tmp_path):
     return save_run(segs["fill"], tmp_path / "run")
 
 
-def _update(run, moved: int, removed: int):
-    """One saved update of the run's state: ``moved`` turned and shifted, ``removed`` gone."""
-    from clutt3r_core.update import InstanceUpdate, UpdateResult
-    from clutt3r_core.update.state import apply_update, save_state, state_from_run
-
-    s0 = state_from_run(run)
-    T = np.eye(4)
-    T[:2, :2] = [[np.cos(0.3), -np.sin(0.3)], [np.sin(0.3), np.cos(0.3)]]
-    T[:3, 3] = (0.05, 0.02, 0.0)
-    recs = tuple(InstanceUpdate(int(k), "displaced", 0.5, 0.9, T) if k == moved else
-                 InstanceUpdate(int(k), "removed", None, None, None) if k == removed else
-                 InstanceUpdate(int(k), "static", 0.9, 0.9, None) for k in s0.instance_ids)
-    r = UpdateResult(8, recs, (), np.zeros((len(recs), 4, 4), bool), np.full((4, 4), -1, np.int32), 0.1)
-    s1 = apply_update(s0, r)
-    save_state(s1, run / "updates" / "01_frame_000008", r)
-    return s1, T
-
-
 def test_a_displaced_objects_filled_walls_move_with_it(segs, fill_run):
     """Fill on, one object displaced and one removed by an update: the filled points are their
     objects' geometry at step 0 (grasp target, state), move with the displaced one (none left at the
@@ -160,7 +143,7 @@ def test_a_displaced_objects_filled_walls_move_with_it(segs, fill_run):
     s0 = state_from_run(fill_run)
     np.testing.assert_array_equal(s0.instance[filled[:n]], seg.instance[:n][filled[:n]])
 
-    _, T = _update(fill_run, moved, removed)
+    _, T = _chain(fill_run, (0.05, 0.02, 0.0), moved, removed)  # one saved update
     sa = scene_after(fill_run, 1, seg=seg)
     want = seg.points[fm].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
     np.testing.assert_allclose(sa.run_points[fm], want, atol=1e-6)  # moved with the object
