@@ -1,8 +1,8 @@
 """Every ``refine.absorb_fragments`` decision on generated scenes, with its features and the ground
 truth's verdict (session 10, docs/benchmark/strict-iou.md "Session 10: absorb errors").
 
-``segment`` runs with the default config; the absorption loop is replayed beside the pipeline's (same
-inputs, same order) to record, per absorbed instance: its won fraction and the share the absorber won,
+``segment`` runs with the default config; the pipeline's absorption records, per absorbed instance
+(the vote before each merge is kept, ``logged_absorb``): its won fraction and the share the absorber won,
 its raw points and their ratio to the absorber's, its masks (count, views, largest pixel area against
 the absorber's median mask), the mean / max S_semantic and S_spatial of its masks to the absorber's,
 the GT object of most of its points, and the owners of its masks (``ap50_misses.mask_owner``). Kind:
@@ -41,33 +41,32 @@ def _mean_max(m: np.ndarray) -> tuple[float | None, float | None]:
 
 
 def logged_absorb(grouping, vote, occupancy, sv_counts, s_spatial, s_semantic, revote, cfg):
-    """``refine.absorb_fragments``'s loop, recording each absorption; returns the real function's result."""
-    if cfg.min_won_fraction > 0:
-        groups = [tuple(g) for g in grouping.groups]
-        v = vote
-        for _ in range(len(groups)):
-            won, best, share = refine.won_fractions(tuple(groups), occupancy, sv_counts, v)
-            lab = v.sv_label
-            pts = np.bincount(lab[lab >= 0], weights=np.asarray(sv_counts, np.float64)[lab >= 0], minlength=len(won))
-            small = pts < cfg.max_size_ratio * pts[np.maximum(best, 0)]
-            cand = np.flatnonzero((won < cfg.min_won_fraction) & (best >= 0) & (share > won) & small)
-            if cfg.absorb_min_semantic > 0 and len(cand):
-                cand = np.array([c for c in cand if refine._semantic_ok(
-                    groups[int(v.instance_group[c])], groups[int(v.instance_group[best[c]])], s_semantic,
-                    cfg.absorb_min_semantic)], np.int64)
-            if not len(cand):
-                break
-            i = int(cand[np.argmin(won[cand])])
-            gi, gj = int(v.instance_group[i]), int(v.instance_group[best[i]])
-            a, b = groups[gi], groups[gj]
-            cross = np.ix_(list(a), list(b))
-            se, sp = _mean_max(s_semantic[cross]), _mean_max(s_spatial[cross])
-            LOG.append(dict(won=float(won[i]), share=float(share[i]), pts=float(pts[i]), pts_nb=float(pts[best[i]]),
-                            a=list(a), b=list(b), se_mean=se[0], se_max=se[1], sp_mean=sp[0], sp_max=sp[1],
-                            sv_a=np.flatnonzero(lab == i), sv_b=np.flatnonzero(lab == best[i])))
-            groups = [g for k, g in enumerate(groups) if k not in (gi, gj)] + [tuple(sorted(a + b))]
-            v = revote(tuple(groups))
-    return refine.absorb_fragments(grouping, vote, occupancy, sv_counts, s_spatial, s_semantic, revote, cfg)
+    """``refine.absorb_fragments`` itself, recording each absorption: the vote before each merge is
+    kept (the first one, then each revote), and each absorb ``MergeStep`` (groups a -> b) is read
+    against it."""
+    votes = [vote]
+
+    def kept(groups):
+        votes.append(revote(groups))
+        return votes[-1]
+
+    out = refine.absorb_fragments(grouping, vote, occupancy, sv_counts, s_spatial, s_semantic, kept, cfg)
+    groups = [tuple(g) for g in grouping.groups]
+    steps = [m for m in out[0].merges[len(grouping.merges):] if m.stage == refine.ABSORB_STAGE]
+    for m, v in zip(steps, votes):
+        won, best, share = refine.won_fractions(tuple(groups), occupancy, sv_counts, v)
+        lab = v.sv_label
+        pts = np.bincount(lab[lab >= 0], weights=np.asarray(sv_counts, np.float64)[lab >= 0], minlength=len(won))
+        gi, gj = groups.index(tuple(m.a)), groups.index(tuple(m.b))
+        i = int(np.flatnonzero(np.asarray(v.instance_group) == gi)[0])
+        a, b = groups[gi], groups[gj]
+        cross = np.ix_(list(a), list(b))
+        se, sp = _mean_max(s_semantic[cross]), _mean_max(s_spatial[cross])
+        LOG.append(dict(won=float(won[i]), share=float(share[i]), pts=float(pts[i]), pts_nb=float(pts[best[i]]),
+                        a=list(a), b=list(b), se_mean=se[0], se_max=se[1], sp_mean=sp[0], sp_max=sp[1],
+                        sv_a=np.flatnonzero(lab == i), sv_b=np.flatnonzero(lab == best[i])))
+        groups = [g for k, g in enumerate(groups) if k not in (gi, gj)] + [tuple(sorted(a + b))]
+    return out
 
 
 def decisions(scene, cfg: SegmentConfig) -> list[dict]:
